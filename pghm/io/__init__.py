@@ -1,0 +1,1 @@
+"""Files: atomic writes, avatar files, .ply export."""
