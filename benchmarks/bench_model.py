@@ -1,0 +1,92 @@
+"""Model timings at the default config (issue 4 targets, 2 threads):
+
+    full forward, identity map -> posed Gaussians     <= 60 ms
+    pose-only update (cached evaluator)               <= 35 ms
+    view-only update (cached evaluator)               <= 20 ms
+
+plus forward+backward of a training step's model part, the parameter count and the peak
+memory (resident set of this process, measured around the model work).
+
+    python benchmarks/bench_model.py
+"""
+
+from __future__ import annotations
+
+import resource
+
+import torch
+
+from common import median_ms, print_table, setup_threads, write_json
+from pghm.body import BodyPose, load_body
+from pghm.model import PGHM, ModelConfig, subject_geometry
+from pghm.model.evaluator import CachedEvaluator
+from pghm.uv.atlas import build_atlas
+
+
+def peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def main() -> None:
+    setup_threads()
+    body = load_body()
+    rows = []
+    for head in ("multi", "single"):
+        config = ModelConfig(head=head)
+        geometry = subject_geometry(body, build_atlas(body, config.uv_resolution))
+        model = PGHM(config, num_identities=8).eval()
+        for module in model.modules():  # non-zero heads, so no branch is trivially cheap
+            if isinstance(module, torch.nn.Conv2d) and module.kernel_size == (1, 1):
+                torch.nn.init.normal_(module.weight, std=0.01)
+        gen = torch.Generator().manual_seed(0)
+        poses = [BodyPose(torch.randn(1, body.num_bones, 3, generator=gen) * 0.3, torch.zeros(1, 3)) for _ in range(2)]
+        cameras = [torch.tensor([0.0, 0.2, 3.0]), torch.tensor([1.5, 0.2, 2.6])]
+        rss_before = peak_rss_mb()
+        with torch.no_grad():
+            identity = model.decode_identity(0)
+            full = median_ms(lambda: model(model.decode_identity(0), geometry, poses[0], cameras[0][None]))
+        evaluator = CachedEvaluator(model, geometry)
+        evaluator.evaluate(identity, poses[0], cameras[0])
+        flip = iter(range(10**9))
+
+        def pose_update():
+            evaluator.evaluate(identity, poses[next(flip) % 2], cameras[0])
+
+        def view_update():
+            evaluator.evaluate(identity, poses[0], cameras[next(flip) % 2])
+
+        pose_ms = median_ms(pose_update)
+        evaluator.evaluate(identity, poses[0], cameras[0])
+        view_ms = median_ms(view_update)
+        model.train()
+        batch_pose = BodyPose(torch.randn(4, body.num_bones, 3, generator=gen) * 0.3, torch.zeros(4, 3))
+        batch_cams = torch.tensor([[0.0, 0.2, 3.0]] * 4)
+
+        def train_step():
+            out = model(model.decode_identity(0), geometry, batch_pose, batch_cams)
+            (out.static.colors.mean() + out.dynamic.means.mean() + out.regularizer).backward()
+
+        train_ms = median_ms(train_step, repeat=5, warmup=1)
+        rows.append(
+            {
+                "head": head,
+                "L": config.uv_resolution,
+                "gaussians": geometry.num_gaussians,
+                "params_M": sum(model.parameter_count().values()) / 1e6,
+                "full_ms": full,
+                "pose_update_ms": pose_ms,
+                "view_update_ms": view_ms,
+                "fwd_bwd_4views_ms": train_ms,
+                "peak_rss_MB": peak_rss_mb(),
+                "rss_before_MB": rss_before,
+            }
+        )
+    print_table(rows)
+    print("targets: full <= 60 ms, pose update <= 35 ms, view update <= 20 ms")
+    counts = PGHM(ModelConfig(), num_identities=0).parameter_count()
+    print("parameters per component (default config, no bank):", counts)
+    write_json("model", {"rows": rows, "parameter_count": counts, "targets_ms": {"full": 60, "pose": 35, "view": 20}})
+
+
+if __name__ == "__main__":
+    main()

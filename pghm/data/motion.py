@@ -1,0 +1,148 @@
+"""Motion clips: a pose per frame, in the shared pose representation, saved as ``.npz``.
+
+A motion file holds
+
+    rotations    (F, J, 3) float32   axis-angle per bone, rest-aligned axes (pghm.body.pose)
+    translation  (F, 3)    float32   root translation in metres
+    fps          ()        float     frames per second
+    body         ()        str       body backend the bones belong to ("anny", "smplx")
+    bone_names   (J,)      str       the bones, to catch a clip meant for another skeleton
+    source       ()        str       where it came from (a BVH path, "procedural:walk", ...)
+
+Files are read with ``allow_pickle=False``: a motion file can never run code.
+"""
+
+from __future__ import annotations
+
+import io
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from pghm.body.pose import BodyPose
+from pghm.errors import MotionFileError
+from pghm.io.atomic import atomic_write_bytes
+
+MOTION_KEYS = ("rotations", "translation", "fps", "body", "bone_names", "source")
+MAX_FRAMES = 100_000
+"""Longest clip accepted (about 55 minutes at 30 fps; 100k x 104 bones x 3 floats = 125 MB)."""
+
+
+@dataclass
+class Motion:
+    """A clip of F poses for one body's skeleton.
+
+    Attributes:
+        rotations: (F, J, 3) float32 axis-angle per bone.
+        translation: (F, 3) float32 root translation, metres.
+        fps: frames per second.
+        body: backend name of the skeleton.
+        bone_names: J bone names.
+        source: provenance, free text.
+    """
+
+    rotations: np.ndarray
+    translation: np.ndarray
+    fps: float
+    body: str
+    bone_names: list[str]
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        self.rotations = np.asarray(self.rotations, dtype=np.float32)
+        self.translation = np.asarray(self.translation, dtype=np.float32)
+        frames = self.rotations.shape[0] if self.rotations.ndim == 3 else -1
+        if self.rotations.ndim != 3 or self.rotations.shape[1:] != (len(self.bone_names), 3):
+            raise MotionFileError(
+                f"motion 'rotations' has shape {self.rotations.shape}, "
+                f"expected (frames, {len(self.bone_names)}, 3)"
+            )
+        if self.translation.shape != (frames, 3):
+            raise MotionFileError(f"motion 'translation' has shape {self.translation.shape}, expected ({frames}, 3)")
+        if frames == 0:
+            raise MotionFileError("motion has no frames")
+        if frames > MAX_FRAMES:
+            raise MotionFileError(f"motion has {frames} frames, more than the {MAX_FRAMES} accepted")
+        if not (np.isfinite(self.fps) and self.fps > 0):
+            raise MotionFileError(f"motion 'fps' must be a positive number, got {self.fps}")
+        for name in ("rotations", "translation"):
+            if not np.isfinite(getattr(self, name)).all():
+                raise MotionFileError(f"motion '{name}' has non-finite values")
+
+    @property
+    def num_frames(self) -> int:
+        return self.rotations.shape[0]
+
+    @property
+    def duration(self) -> float:
+        """Seconds from the first to the last frame."""
+        return (self.num_frames - 1) / self.fps
+
+    def pose(self, frames: int | slice | np.ndarray | None = None) -> BodyPose:
+        """The poses of ``frames`` (default all) as a batched :class:`BodyPose`."""
+        index = slice(None) if frames is None else frames
+        rot = torch.from_numpy(np.ascontiguousarray(self.rotations[index]))
+        trans = torch.from_numpy(np.ascontiguousarray(self.translation[index]))
+        if rot.ndim == 2:
+            rot, trans = rot[None], trans[None]
+        return BodyPose(rot, trans)
+
+    def frame_at(self, seconds: float, loop: bool = True) -> int:
+        """The frame shown at time ``seconds`` (nearest frame; wraps when ``loop``)."""
+        frame = int(round(seconds * self.fps))
+        return frame % self.num_frames if loop else min(max(frame, 0), self.num_frames - 1)
+
+    def check_skeleton(self, body_name: str, bone_names: list[str]) -> None:
+        """Raise :class:`MotionFileError` when the clip was made for another skeleton."""
+        if self.body != body_name or list(self.bone_names) != list(bone_names):
+            raise MotionFileError(
+                f"motion is for the '{self.body}' skeleton ({len(self.bone_names)} bones), "
+                f"not '{body_name}' ({len(bone_names)} bones); re-import or re-generate it for this body"
+            )
+
+    def save(self, path: str | Path) -> None:
+        """Write the clip atomically as ``.npz``."""
+        buffer = io.BytesIO()
+        np.savez_compressed(
+            buffer,
+            rotations=self.rotations,
+            translation=self.translation,
+            fps=np.float64(self.fps),
+            body=np.str_(self.body),
+            bone_names=np.array(self.bone_names, dtype=np.str_),
+            source=np.str_(self.source),
+        )
+        atomic_write_bytes(path, buffer.getvalue())
+
+    @staticmethod
+    def load(path: str | Path) -> Motion:
+        """Read a ``.npz`` motion; any problem is one :class:`MotionFileError` naming it."""
+        path = Path(path)
+        if not path.is_file():
+            raise MotionFileError(f"{path}: motion file not found")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                missing = [key for key in MOTION_KEYS if key not in data.files]
+                if missing:
+                    raise MotionFileError(f"{path}: not a pghm motion file, missing {', '.join(missing)}")
+                fields = {key: data[key] for key in MOTION_KEYS}
+        except MotionFileError:
+            raise
+        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
+            raise MotionFileError(f"{path}: unreadable motion file ({error})") from None
+        try:
+            return Motion(
+                rotations=fields["rotations"],
+                translation=fields["translation"],
+                fps=float(fields["fps"]),
+                body=str(fields["body"]),
+                bone_names=[str(n) for n in fields["bone_names"]],
+                source=str(fields["source"]),
+            )
+        except (TypeError, ValueError) as error:
+            if isinstance(error, MotionFileError):
+                raise MotionFileError(f"{path}: {error}") from None
+            raise MotionFileError(f"{path}: malformed motion file ({error})") from None

@@ -1,0 +1,225 @@
+"""The avatar file (``avatar.pt``, and ``prior.pt`` in the same format).
+
+One versioned file holding everything needed to rebuild and drive an avatar:
+
+    format      "pghm-avatar"
+    version     FORMAT_VERSION
+    kind        "avatar" (one personalised subject) or "prior" (a bank of identities)
+    config      the ModelConfig fields
+    body        {"name": backend, "shape": (S,) for an avatar, "shapes": (n, S) for a prior}
+    latent      (1, C, L, L) full-resolution identity latent of an avatar (None for a prior)
+    weights     the network's state dict (the bank is ``identity_bank``, (n, C, L', L'))
+    metadata    training record: data, steps, seconds, metrics (plain JSON-like values)
+
+Files are read with ``torch.load(weights_only=True)``: only tensors and plain containers
+can come back, so opening an untrusted avatar never runs code. Every problem — a
+truncated file, random bytes, a foreign pickle, a wrong version, a missing key, a tensor
+of the wrong shape or dtype or with NaN — is one :class:`AvatarFileError` line naming it.
+Saves are atomic (temporary file, fsync, rename).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import pickle
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from pghm.errors import AvatarFileError, PghmError
+from pghm.io.atomic import atomic_write_bytes
+from pghm.model.config import ModelConfig
+from pghm.model.pghm import PGHM
+
+FORMAT_NAME = "pghm-avatar"
+FORMAT_VERSION = 1
+REQUIRED_KEYS = ("format", "version", "kind", "config", "body", "latent", "weights", "metadata")
+KINDS = ("avatar", "prior")
+
+
+@dataclass
+class Avatar:
+    """A loaded avatar or prior.
+
+    Attributes:
+        model: the network, in eval mode.
+        kind: "avatar" or "prior".
+        body_name: body backend the avatar was built on.
+        shape: (S,) body shape of an avatar; for a prior, the first identity's.
+        shapes: (n, S) per-identity shapes of a prior, or None.
+        latent: (1, C, L, L) personal latent of an avatar, or None for a prior.
+        metadata: the training record.
+    """
+
+    model: PGHM
+    kind: str
+    body_name: str
+    shape: Tensor
+    shapes: Tensor | None = None
+    latent: Tensor | None = None
+    metadata: dict = field(default_factory=dict)
+
+    def identity_map(self, index: int = 0) -> Tensor:
+        """F (1, C, L, L): the personal latent of an avatar, or identity ``index`` of a prior."""
+        if self.latent is not None:
+            return self.latent
+        with torch.no_grad():
+            return self.model.decode_identity(index)
+
+    def shape_of(self, index: int = 0) -> Tensor:
+        """(S,) the body shape of identity ``index`` (the avatar's own for an avatar)."""
+        return self.shapes[index] if self.shapes is not None else self.shape
+
+
+def _plain(value: object, where: str) -> object:
+    """``value`` as plain JSON-like data (what weights_only loading accepts)."""
+    try:
+        return json.loads(json.dumps(value))
+    except (TypeError, ValueError) as error:
+        raise PghmError(f"avatar {where} must be plain JSON-like data: {error}") from None
+
+
+def avatar_payload(avatar: Avatar) -> dict:
+    """The dictionary written to disk."""
+    body = {"name": avatar.body_name, "shape": avatar.shape.detach().float().cpu()}
+    if avatar.shapes is not None:
+        body["shapes"] = avatar.shapes.detach().float().cpu()
+    return {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "kind": avatar.kind,
+        "config": _plain(avatar.model.config.to_dict(), "config"),
+        "body": body,
+        "latent": None if avatar.latent is None else avatar.latent.detach().float().cpu(),
+        "weights": {k: v.detach().cpu() for k, v in avatar.model.state_dict().items()},
+        "metadata": _plain(avatar.metadata, "metadata"),
+    }
+
+
+def save_avatar(path: str | Path, avatar: Avatar) -> None:
+    """Write ``avatar`` to ``path`` atomically."""
+    if avatar.kind not in KINDS:
+        raise PghmError(f"avatar kind must be one of {KINDS}, got {avatar.kind!r}")
+    buffer = io.BytesIO()
+    torch.save(avatar_payload(avatar), buffer)
+    atomic_write_bytes(path, buffer.getvalue())
+
+
+def _fail(path: Path, problem: str) -> AvatarFileError:
+    return AvatarFileError(f"{path}: {problem}")
+
+
+def _read(path: Path) -> dict:
+    if not path.is_file():
+        raise _fail(path, "avatar file not found")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as error:
+        reason = str(error).splitlines()[0] if str(error) else "unpickling failed"
+        if "weights_only" in str(error) or "Unsupported global" in str(error):
+            reason = "refusing to load objects other than tensors and plain data (the file may contain code)"
+        raise _fail(path, f"not a pghm avatar file: {reason}") from None
+    except (RuntimeError, EOFError, zipfile.BadZipFile, OSError, ValueError, TypeError, KeyError) as error:
+        first = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise _fail(path, f"not a readable avatar file (truncated or corrupted?): {first}") from None
+    if not isinstance(payload, dict):
+        raise _fail(path, f"not a pghm avatar file (holds a {type(payload).__name__})")
+    return payload
+
+
+def _check_tensor(path: Path, name: str, value: object, shape: tuple[int, ...] | None) -> Tensor:
+    if not isinstance(value, Tensor):
+        raise _fail(path, f"'{name}' is not a tensor")
+    if not value.is_floating_point():
+        raise _fail(path, f"'{name}' has dtype {value.dtype}, expected a float tensor")
+    if shape is not None and tuple(value.shape) != shape:
+        raise _fail(path, f"'{name}' has shape {tuple(value.shape)}, expected {shape}")
+    if not torch.isfinite(value).all():
+        raise _fail(path, f"'{name}' has non-finite values")
+    return value.float()
+
+
+def load_avatar(path: str | Path) -> Avatar:
+    """Read an avatar or prior file; one :class:`AvatarFileError` line on any problem."""
+    path = Path(path)
+    payload = _read(path)
+    missing = [key for key in REQUIRED_KEYS if key not in payload]
+    if payload.get("format") != FORMAT_NAME:
+        raise _fail(path, "not a pghm avatar file (no 'format: pghm-avatar' marker)")
+    if missing:
+        raise _fail(path, f"missing keys: {', '.join(missing)}")
+    if payload["version"] != FORMAT_VERSION:
+        raise _fail(
+            path, f"format version {payload['version']!r}, this pghm reads version {FORMAT_VERSION}"
+        )
+    if payload["kind"] not in KINDS:
+        raise _fail(path, f"unknown kind {payload['kind']!r}")
+    try:
+        config = ModelConfig.from_dict(payload["config"])
+    except (PghmError, TypeError, AttributeError) as error:
+        raise _fail(path, f"bad model config: {error}") from None
+
+    weights = payload["weights"]
+    if not isinstance(weights, dict) or "identity_bank" not in weights:
+        raise _fail(path, "'weights' is not a network state dict")
+    bank = weights["identity_bank"]
+    if not isinstance(bank, Tensor) or bank.dim() != 4:
+        raise _fail(path, "'weights.identity_bank' is not a (n, C, L', L') tensor")
+    model = PGHM(config, num_identities=bank.shape[0])
+    expected = model.state_dict()
+    missing_weights = sorted(set(expected) - set(weights))
+    unexpected = sorted(set(weights) - set(expected))
+    if missing_weights or unexpected:
+        listed = ", ".join((missing_weights or unexpected)[:3])
+        raise _fail(path, f"weights do not match the model config ({'missing' if missing_weights else 'unexpected'}: {listed})")
+    for name, tensor in expected.items():
+        _check_tensor(path, f"weights.{name}", weights[name], tuple(tensor.shape))
+    model.load_state_dict({k: v.float() for k, v in weights.items()})
+    model.eval()
+
+    body = payload["body"]
+    if not isinstance(body, dict) or not isinstance(body.get("name"), str) or "shape" not in body:
+        raise _fail(path, "'body' must hold a backend 'name' and a 'shape'")
+    shape = _check_tensor(path, "body.shape", body["shape"], None)
+    if shape.dim() != 1:
+        raise _fail(path, f"'body.shape' has shape {tuple(shape.shape)}, expected (S,)")
+    shapes = None
+    if "shapes" in body:
+        shapes = _check_tensor(path, "body.shapes", body["shapes"], (bank.shape[0], shape.shape[0]))
+    latent = payload["latent"]
+    if payload["kind"] == "avatar":
+        size = config.uv_resolution
+        latent = _check_tensor(path, "latent", latent, (1, config.latent_channels, size, size))
+    elif latent is not None:
+        raise _fail(path, "a prior file must not hold a personal latent")
+    metadata = payload["metadata"] if isinstance(payload["metadata"], dict) else {}
+    return Avatar(
+        model=model,
+        kind=payload["kind"],
+        body_name=body["name"],
+        shape=shape,
+        shapes=shapes,
+        latent=latent,
+        metadata=metadata,
+    )
+
+
+def avatar_geometry(avatar: Avatar, index: int = 0, body_model_path: str | None = None):
+    """The :class:`~pghm.model.geometry.SubjectGeometry` of identity ``index`` of ``avatar``.
+
+    Args:
+        avatar: a loaded avatar or prior.
+        index: which identity of a prior (ignored for an avatar).
+        body_model_path: the user's model file for bodies that are not embedded (SMPL-X).
+    """
+    from pghm.body import load_body
+    from pghm.model.geometry import subject_geometry
+    from pghm.uv.atlas import build_atlas
+
+    body = load_body(avatar.body_name, body_model_path)
+    atlas = build_atlas(body, avatar.model.config.uv_resolution)
+    return subject_geometry(body, atlas, avatar.shape_of(index))

@@ -1,0 +1,84 @@
+"""Model configuration: every size is a value here, with defaults for a 2-core CPU.
+
+Scaling up on real hardware means changing these values (e.g. ``uv_resolution=256``,
+``latent_channels=32``, wider ``encoder_channels``), not code.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from typing import Literal
+
+from pghm.errors import PghmError
+from pghm.uv.atlas import check_resolution
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Sizes and bounds of the PGHM network."""
+
+    uv_resolution: int = 128
+    """L: side of the UV maps; every valid texel is one Gaussian (11,156 at 128 for Anny)."""
+
+    latent_channels: int = 16
+    """C: channels of the identity map F (and of the latents in the bank)."""
+
+    encoder_channels: tuple[int, ...] = (24, 32, 48, 64, 96)
+    """Channels of the U-Net encoder E_u at resolutions L, L/2, L/4, ...; the last is the bottleneck."""
+
+    decoder_channels: tuple[int, ...] = (64, 48, 32, 16)
+    """Channels of each decoder head on the way up, from the bottleneck's parent level to L."""
+
+    condition_channels: tuple[int, ...] = (8, 12, 16, 24, 32)
+    """Channels of the light pose and view encoders E_p, E_v at each encoder level."""
+
+    head: Literal["multi", "single"] = "multi"
+    """"multi": the paper's D_static, D_pose, D_view; "single": one decoder for everything (ablation)."""
+
+    max_static_offset: float = 0.08
+    """Bound (metres) on the static position offset V_p (loose clothes, hair)."""
+
+    max_pose_offset: float = 0.04
+    """Bound (metres) on the pose-dependent position offset V_p^o (wrinkles, folds)."""
+
+    scale_factor_range: float = 4.0
+    """The isotropic scale stays within [1/r, r] times the texel's base scale."""
+
+    base_scale_factor: float = 0.6
+    """Base scale = this x the surface length one texel spans at that texel."""
+
+    min_scale: float = 5e-4
+    max_scale: float = 0.05
+    """Absolute bounds (metres) on every Gaussian's scale."""
+
+    def __post_init__(self) -> None:
+        check_resolution(self.uv_resolution)
+        levels = len(self.encoder_channels)
+        if len(self.decoder_channels) != levels - 1 or len(self.condition_channels) != levels:
+            raise PghmError(
+                "model config: decoder_channels needs one entry fewer than encoder_channels, "
+                "condition_channels as many"
+            )
+        if self.uv_resolution >> (levels - 1) < 4:
+            raise PghmError(f"model config: {levels} levels are too many for L = {self.uv_resolution}")
+        if self.latent_channels < 1 or min(self.encoder_channels + self.decoder_channels) < 1:
+            raise PghmError("model config: channel counts must be positive")
+        if self.head not in ("multi", "single"):
+            raise PghmError(f"model config: head must be 'multi' or 'single', got {self.head!r}")
+
+    @property
+    def latent_resolution(self) -> int:
+        """L' = L / 2: side of the compact latents of the identity bank."""
+        return self.uv_resolution // 2
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(values: dict) -> ModelConfig:
+        known = {f.name for f in fields(ModelConfig)}
+        unknown = set(values) - known
+        if unknown:
+            raise PghmError(f"model config: unknown fields {sorted(unknown)}")
+        converted = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
+        return ModelConfig(**converted)

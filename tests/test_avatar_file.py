@@ -1,0 +1,163 @@
+"""avatar.pt: round trip, and one clear error for every kind of bad file."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from pghm.errors import AvatarFileError
+from pghm.io.avatar import Avatar, avatar_payload, load_avatar, save_avatar
+from pghm.model import PGHM, ModelConfig
+
+SMALL = ModelConfig(
+    uv_resolution=32,
+    latent_channels=4,
+    encoder_channels=(4, 6, 8),
+    decoder_channels=(6, 4),
+    condition_channels=(2, 2, 4),
+)
+
+
+def make_avatar(kind: str = "avatar") -> Avatar:
+    torch.manual_seed(0)
+    model = PGHM(SMALL, num_identities=3 if kind == "prior" else 0)
+    for p in model.parameters():
+        p.data.normal_()
+    latent = torch.randn(1, 4, 32, 32) if kind == "avatar" else None
+    return Avatar(
+        model=model,
+        kind=kind,
+        body_name="anny",
+        shape=torch.full((6,), 0.5),
+        shapes=torch.rand(3, 6) if kind == "prior" else None,
+        latent=latent,
+        metadata={"steps": 12, "data": "synthetic", "metrics": {"psnr": 30.5}},
+    )
+
+
+@pytest.mark.parametrize("kind", ["avatar", "prior"])
+def test_round_trip(tmp_path, kind):
+    avatar = make_avatar(kind)
+    path = tmp_path / "a.pt"
+    save_avatar(path, avatar)
+    loaded = load_avatar(path)
+    assert loaded.kind == kind and loaded.body_name == "anny" and loaded.metadata == avatar.metadata
+    assert loaded.model.config == SMALL
+    for (name, a), (_, b) in zip(avatar.model.state_dict().items(), loaded.model.state_dict().items()):
+        assert torch.equal(a, b), name
+    if kind == "avatar":
+        assert torch.equal(loaded.latent, avatar.latent)
+    else:
+        assert torch.equal(loaded.shapes, avatar.shapes) and loaded.latent is None
+        torch.testing.assert_close(loaded.identity_map(2), avatar.model.decode_identity(2))
+    assert not list(tmp_path.glob(".*tmp"))  # no temporary file left behind
+
+
+def write_payload(path, **changes):
+    payload = avatar_payload(make_avatar())
+    for key, value in changes.items():
+        if value is KeyError:
+            del payload[key]
+        else:
+            payload[key] = value
+    torch.save(payload, path)
+    return path
+
+
+def expect_error(path, match):
+    with pytest.raises(AvatarFileError, match=match) as info:
+        load_avatar(path)
+    message = str(info.value)
+    assert "\n" not in message and str(path) in message
+    return message
+
+
+def test_missing_file(tmp_path):
+    expect_error(tmp_path / "none.pt", "not found")
+
+
+def test_truncated_file(tmp_path):
+    path = tmp_path / "a.pt"
+    save_avatar(path, make_avatar())
+    data = path.read_bytes()
+    for cut in (10, len(data) // 2, len(data) - 20):
+        path.write_bytes(data[:cut])
+        expect_error(path, "truncated or corrupted")
+
+
+def test_random_bytes(tmp_path):
+    path = tmp_path / "a.pt"
+    path.write_bytes(os.urandom(4096))
+    expect_error(path, "avatar file")
+
+
+def test_foreign_tensor_file(tmp_path):
+    path = tmp_path / "a.pt"
+    torch.save(torch.zeros(3), path)
+    expect_error(path, "not a pghm avatar file")
+
+
+def test_wrong_version(tmp_path):
+    expect_error(write_payload(tmp_path / "a.pt", version=99), "format version 99")
+
+
+def test_missing_keys(tmp_path):
+    expect_error(write_payload(tmp_path / "a.pt", latent=KeyError), "missing keys: latent")
+
+
+def test_wrong_shapes_dtypes_and_nan(tmp_path):
+    payload = avatar_payload(make_avatar())
+    good_latent = payload["latent"]
+    cases = {
+        "latent_shape": ({"latent": good_latent[:, :2]}, "'latent' has shape"),
+        "latent_dtype": ({"latent": good_latent.long()}, "dtype torch.int64"),
+        "latent_nan": ({"latent": good_latent.clone().fill_(float("nan"))}, "non-finite"),
+        "shape_nan": ({"body": {"name": "anny", "shape": torch.full((6,), float("inf"))}}, "body.shape"),
+    }
+    for name, (change, match) in cases.items():
+        expect_error(write_payload(tmp_path / f"{name}.pt", **change), match)
+    weights = dict(payload["weights"])
+    key = next(k for k in weights if k.endswith("head.weight"))
+    weights[key] = weights[key][:1]
+    expect_error(write_payload(tmp_path / "w.pt", weights=weights), f"weights.{key}' has shape")
+    weights = dict(payload["weights"])
+    weights[key] = weights[key].clone().fill_(float("nan"))
+    expect_error(write_payload(tmp_path / "n.pt", weights=weights), "non-finite")
+    weights = dict(payload["weights"])
+    del weights[key]
+    expect_error(write_payload(tmp_path / "m.pt", weights=weights), "do not match")
+
+
+class RunsCode:
+    """Unpickling this object would create a marker file."""
+
+    def __init__(self, marker: str) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+def test_code_in_the_pickle_never_runs(tmp_path):
+    marker = tmp_path / "pwned"
+    path = write_payload(tmp_path / "evil.pt", metadata={"x": RunsCode(str(marker))})
+    assert not marker.exists()
+    expect_error(path, "refusing to load")
+    assert not marker.exists()
+
+
+def test_cli_style_failure_in_a_subprocess(tmp_path):
+    """Loading a bad file from a fresh interpreter prints no traceback when handled by the CLI runner."""
+    path = tmp_path / "bad.pt"
+    path.write_bytes(b"garbage")
+    code = (
+        "import sys; from pghm.cli.main import run; from pghm.io.avatar import load_avatar;"
+        f"sys.exit(run(lambda a: load_avatar({str(path)!r}), None))"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 2
+    assert result.stderr.count("\n") == 1 and "pghm: error:" in result.stderr

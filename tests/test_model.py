@@ -1,0 +1,163 @@
+"""The PGHM network: shapes, bounds, gradients, and the cached evaluator against a full recompute."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from pghm.body import BodyPose
+from pghm.model import PGHM, ModelConfig, subject_geometry
+from pghm.model.evaluator import CachedEvaluator
+from pghm.uv.atlas import build_atlas
+
+SMALL = ModelConfig(
+    uv_resolution=64,
+    latent_channels=8,
+    encoder_channels=(8, 12, 16, 24),
+    decoder_channels=(16, 12, 8),
+    condition_channels=(4, 4, 8, 8),
+)
+
+
+@pytest.fixture(scope="module")
+def geometry(body):
+    return subject_geometry(body, build_atlas(body, SMALL.uv_resolution))
+
+
+def randomize_heads(model: PGHM, scale: float = 0.05) -> None:
+    """Give the zero-initialised heads random weights, so every branch affects the output."""
+    gen = torch.Generator().manual_seed(0)
+    for module in model.modules():
+        if isinstance(module, torch.nn.Conv2d) and module.kernel_size == (1, 1):
+            module.weight.data = torch.randn(module.weight.shape, generator=gen) * scale
+            module.bias.data = torch.randn(module.bias.shape, generator=gen) * scale
+
+
+def random_pose(body, batch: int = 1, seed: int = 0) -> BodyPose:
+    gen = torch.Generator().manual_seed(seed)
+    return BodyPose(torch.randn(batch, body.num_bones, 3, generator=gen) * 0.3, torch.randn(batch, 3, generator=gen) * 0.1)
+
+
+def test_untrained_model_puts_gaussians_on_the_surface(body, geometry):
+    model = PGHM(SMALL, num_identities=2)
+    pose = random_pose(body, batch=2)
+    out = model(model.decode_identity(0), geometry, pose, torch.tensor([[0.0, 0.0, 3.0], [3.0, 0.0, 0.0]]))
+    surface = model.skin(geometry, pose).surface_points
+    n = geometry.num_gaussians
+    for gaussians in (out.static, out.dynamic):
+        assert gaussians.means.shape == (2, n, 3) and gaussians.scales.shape == (2, n)
+        assert gaussians.colors.shape == (2, n, 3) and gaussians.opacities.shape == (2, n)
+        torch.testing.assert_close(gaussians.means, surface)
+        torch.testing.assert_close(gaussians.colors, torch.full_like(gaussians.colors, 0.5))
+        assert torch.equal(gaussians.opacities, torch.ones(2, n))
+    base = (SMALL.base_scale_factor * geometry.texel_length).clamp(SMALL.min_scale, SMALL.max_scale)
+    torch.testing.assert_close(out.static.scales, base.expand(2, -1))
+    assert out.regularizer == 0
+
+
+def test_outputs_stay_bounded_for_wild_inputs(body, geometry):
+    model = PGHM(SMALL, num_identities=1)
+    randomize_heads(model, scale=50.0)  # saturate every activation
+    identity = model.decode_identity(0) * 100
+    out = model(identity, geometry, random_pose(body), torch.tensor([[0.0, 0.0, 3.0]]))
+    for g in (out.static, out.dynamic):
+        assert torch.isfinite(g.means).all() and torch.isfinite(g.scales).all()
+        assert (g.scales >= SMALL.min_scale).all() and (g.scales <= SMALL.max_scale).all()
+        assert (g.colors >= 0).all() and (g.colors <= 1).all()
+    surface = model.skin(geometry, random_pose(body)).surface_points
+    max_offset = SMALL.max_static_offset + SMALL.max_pose_offset
+    assert (out.dynamic.means - surface).norm(dim=-1).max() <= max_offset * math.sqrt(3) + 1e-5
+
+
+def test_gradients_reach_every_component(body, geometry):
+    model = PGHM(SMALL, num_identities=2)
+    randomize_heads(model)
+    out = model(model.decode_identity(1), geometry, random_pose(body), torch.tensor([[0.5, 0.2, 3.0]]))
+    loss = sum(g.means.square().mean() + g.scales.mean() + g.colors.mean() for g in (out.static, out.dynamic))
+    (loss + out.regularizer).backward()
+    for name, parameter in model.named_parameters():
+        assert parameter.grad is not None and torch.isfinite(parameter.grad).all(), name
+        assert parameter.grad.abs().sum() > 0, name
+    assert model.identity_bank.grad[0].abs().sum() == 0  # only identity 1 was used
+
+
+def test_single_head_variant(body, geometry):
+    config = ModelConfig(**{**SMALL.to_dict(), "head": "single"})
+    model = PGHM(config, num_identities=1)
+    randomize_heads(model)
+    identity = model.decode_identity(0)
+    camera = torch.tensor([[0.0, 0.0, 3.0]])
+    a = model(identity, geometry, random_pose(body, seed=1), camera)
+    b = model(identity, geometry, random_pose(body, seed=2), camera)
+    assert not hasattr(model, "static_decoder") and hasattr(model, "single_decoder")
+    # One decoder predicts everything, so even the "static" colours depend on the pose.
+    assert (a.static.colors - b.static.colors).abs().max() > 1e-4
+
+
+@pytest.mark.parametrize("head", ["multi", "single"])
+def test_cached_evaluation_equals_full_recompute(body, geometry, head):
+    config = ModelConfig(**{**SMALL.to_dict(), "head": head})
+    model = PGHM(config, num_identities=2).eval()
+    randomize_heads(model)
+    evaluator = CachedEvaluator(model, geometry)
+    identity_a, identity_b = model.decode_identity(0).detach(), model.decode_identity(1).detach()
+    pose_a, pose_b = random_pose(body, seed=3), random_pose(body, seed=4)
+    cam_a, cam_b = torch.tensor([0.0, 0.3, 3.0]), torch.tensor([2.0, 0.1, 2.0])
+    steps = [
+        ("first", identity_a, pose_a, cam_a),
+        ("nothing", identity_a, pose_a, cam_a),
+        ("camera", identity_a, pose_a, cam_b),
+        ("pose", identity_a, pose_b, cam_b),
+        ("identity", identity_b, pose_b, cam_b),
+        ("same values, new tensors", identity_b.clone(), BodyPose(pose_b.rotations.clone(), pose_b.translation.clone()), cam_b.clone()),
+    ]
+    ran = {}
+    for label, identity, pose, camera in steps:
+        model.run_counts.clear()
+        cached = evaluator.evaluate(identity, pose, camera)
+        ran[label] = dict(model.run_counts)
+        with torch.no_grad():
+            full = model(identity, geometry, pose, camera[None])
+        for got, want in ((cached.static, full.static), (cached.dynamic, full.dynamic)):
+            for field in ("means", "scales", "colors"):
+                assert (getattr(got, field) - getattr(want, field)).abs().max() <= 1e-6, (label, field)
+
+    assert ran["nothing"] == {} and ran["same values, new tensors"] == {}
+    if head == "multi":
+        assert ran["first"] == {k: 1 for k in ("unet_encoder", "static_decoder", "pose_encoder", "pose_decoder", "view_encoder", "view_decoder")}
+        assert ran["camera"] == {"view_encoder": 1, "view_decoder": 1}
+        assert ran["pose"] == {"pose_encoder": 1, "pose_decoder": 1, "view_encoder": 1, "view_decoder": 1}
+        assert ran["identity"] == ran["first"]
+    else:
+        assert ran["camera"] == {"view_encoder": 1, "single_decoder": 1}
+        assert ran["pose"] == {"pose_encoder": 1, "view_encoder": 1, "single_decoder": 1}
+
+
+def test_evaluator_skips_branches_the_display_does_not_need(body, geometry):
+    model = PGHM(SMALL, num_identities=1).eval()
+    randomize_heads(model)
+    evaluator = CachedEvaluator(model, geometry)
+    identity, pose = model.decode_identity(0).detach(), random_pose(body)
+    out = evaluator.evaluate(identity, pose, torch.tensor([0.0, 0.0, 3.0]), dynamic=False)
+    assert "pose_decoder" not in model.run_counts and "view_decoder" not in model.run_counts
+    torch.testing.assert_close(out.dynamic.means, out.static.means)
+    model.run_counts.clear()
+    evaluator.evaluate(identity, pose, torch.tensor([1.0, 0.0, 3.0]), dynamic=False)
+    assert model.run_counts == {}  # the camera only matters to D_view, which is off
+    out = evaluator.evaluate(identity, pose, torch.tensor([1.0, 0.0, 3.0]), view_dependent=False)
+    assert model.run_counts == {"pose_encoder": 1, "pose_decoder": 1}
+    torch.testing.assert_close(out.dynamic.colors, out.static.colors)
+
+
+def test_config_validation():
+    from pghm.errors import PghmError
+
+    with pytest.raises(PghmError, match="power of two"):
+        ModelConfig(uv_resolution=100)
+    with pytest.raises(PghmError, match="one entry fewer"):
+        ModelConfig(decoder_channels=(8,))
+    with pytest.raises(PghmError, match="too many"):
+        ModelConfig(uv_resolution=32, encoder_channels=(4,) * 6, decoder_channels=(4,) * 5, condition_channels=(4,) * 6)
+    assert ModelConfig.from_dict(SMALL.to_dict()) == SMALL
