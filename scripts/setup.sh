@@ -41,3 +41,4 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     fi
     touch "$stamp"
 fi
+.venv/bin/python -m pghm.splat.native || echo "setup: warning: the native splat kernel did not build; renders fall back to the slow torch path" >&2

@@ -26,3 +26,24 @@ def atlas128(body):
     from pghm.uv.atlas import build_atlas
 
     return build_atlas(body, 128)
+
+
+@pytest.fixture(scope="session")
+def tiny_dataset(tmp_path_factory):
+    """2 synthetic subjects x 2 views x 3 frames at 64 px, rendered once per session."""
+    from pghm.data.synth.config import PRESETS
+    from pghm.data.synth.generate import generate
+
+    out = tmp_path_factory.mktemp("data") / "tiny"
+    generate(PRESETS["tiny"], seed=0, out=out, workers=1, progress=False)
+    return out
+
+
+TINY_MODEL = dict(
+    uv_resolution=32,
+    latent_channels=4,
+    encoder_channels=(8, 12, 16),
+    decoder_channels=(12, 8),
+    condition_channels=(4, 4, 4),
+)
+"""A model small enough to train for a few steps inside a test."""

@@ -161,3 +161,19 @@ def test_config_validation():
     with pytest.raises(PghmError, match="too many"):
         ModelConfig(uv_resolution=32, encoder_channels=(4,) * 6, decoder_channels=(4,) * 5, condition_channels=(4,) * 6)
     assert ModelConfig.from_dict(SMALL.to_dict()) == SMALL
+
+
+def test_shared_poses_equal_repeated_poses(body, geometry):
+    """Views sharing a pose through pose_index give what repeating the pose per view gives."""
+    model = PGHM(SMALL, num_identities=1)
+    randomize_heads(model)
+    poses = random_pose(body, batch=2, seed=5)
+    index = torch.tensor([0, 1, 1, 0])
+    centres = torch.tensor([[0.0, 0.0, 3.0], [3.0, 0.0, 0.0], [0.0, 1.0, -3.0], [-2.0, 0.5, 2.0]])
+    identity = model.decode_identity(0)
+    with torch.no_grad():
+        shared = model(identity, geometry, poses, centres, pose_index=index)
+        repeated = model(identity, geometry, BodyPose(poses.rotations[index], poses.translation[index]), centres)
+    for a, b in ((shared.static, repeated.static), (shared.dynamic, repeated.dynamic)):
+        for field in ("means", "scales", "colors"):
+            torch.testing.assert_close(getattr(a, field), getattr(b, field), atol=1e-6, rtol=0)

@@ -35,7 +35,7 @@ class ModelConfig:
     head: Literal["multi", "single"] = "multi"
     """"multi": the paper's D_static, D_pose, D_view; "single": one decoder for everything (ablation)."""
 
-    max_static_offset: float = 0.08
+    max_static_offset: float = 0.12
     """Bound (metres) on the static position offset V_p (loose clothes, hair)."""
 
     max_pose_offset: float = 0.04

@@ -56,8 +56,9 @@ POSE_INPUT_CHANNELS = 3
 """E_p input: posed texel points in the root frame, minus the canonical points."""
 VIEW_INPUT_CHANNELS = 9
 """E_v input: posed points relative to the root joint (3), view directions (3), posed normals (3)."""
-REG_POSITION_UNIT = 0.01
-"""Length (metres) at which a position offset costs as much as an e-fold scale change."""
+REG_POSITION_UNIT = 0.05
+"""Length (metres) at which a position offset costs as much as an e-fold scale change: loose
+clothes sit a few centimetres off the body, which this should not fight."""
 LATENT_INIT_STD = 0.01
 """Standard deviation of a new identity latent."""
 
@@ -107,6 +108,12 @@ class Skinned:
     root: Tensor
     pose_input: Tensor
 
+    def select(self, index: Tensor) -> Skinned:
+        """The poses ``index`` (B,) of this batch, e.g. one per view of a shared pose."""
+        return Skinned(*(field[index] for field in (
+            self.transforms, self.surface_points, self.rotation_delta, self.normals, self.root, self.pose_input
+        )))
+
 
 @dataclass
 class PoseBranch:
@@ -114,6 +121,10 @@ class PoseBranch:
 
     features: Pyramid
     maps: Tensor | None
+
+    def select(self, index: Tensor) -> PoseBranch:
+        """The poses ``index`` (B,) of this batch."""
+        return PoseBranch([f[index] for f in self.features], None if self.maps is None else self.maps[index])
 
 
 @dataclass
@@ -301,12 +312,28 @@ class PGHM(nn.Module):
         )
 
     def forward(
-        self, identity_map: Tensor, geometry: SubjectGeometry, pose: BodyPose, camera_centres: Tensor
+        self,
+        identity_map: Tensor,
+        geometry: SubjectGeometry,
+        pose: BodyPose,
+        camera_centres: Tensor,
+        pose_index: Tensor | None = None,
     ) -> AvatarOutput:
-        """Full evaluation: identity map (1 or B, C, L, L), B poses, (B, 3) camera centres."""
+        """Full evaluation for B views.
+
+        Args:
+            identity_map: (1 or B, C, L, L).
+            pose: P poses; P = B unless ``pose_index`` is given.
+            camera_centres: (B, 3).
+            pose_index: (B,) which of the P poses each view shows. Views of one instant
+                (multi-view data) then share the skinning and the pose branch, which run
+                once per pose instead of once per view.
+        """
         features = self.identity_features(identity_map)
         skinned = self.skin(geometry, pose)
         pose_branch = self.pose_branch(features, skinned)
+        if pose_index is not None:
+            skinned, pose_branch = skinned.select(pose_index), pose_branch.select(pose_index)
         view = self.view_branch(features, skinned, pose_branch, geometry, camera_centres)
         return self.assemble(features, skinned, pose_branch, view, geometry)
 

@@ -1,0 +1,70 @@
+"""Synthetic data generation speed, and the contact sheet in docs/.
+
+Target: the ``prior`` preset (16 identities x 8 views x 30 frames at 256 x 256, 3,840
+images) in at most 3 minutes on 2 cores. Also times the ``mono`` preset, validates both
+with the checker, and writes docs/synth_contact_sheet.png (every prior subject from the
+front and the back, and a strip of the monocular walk).
+
+    python benchmarks/bench_synth.py [--keep DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+from common import DOCS, print_table, write_json
+from pghm.data.subject import check
+from pghm.data.synth import contact_sheet, generate, load_config
+
+TARGET_S = 180.0
+SEED = 0
+MONO_SEED = 1
+"""Another seed for the monocular set, so the sheet's strip shows another person."""
+
+
+def _size_mb(folder: Path) -> float:
+    return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) / 1e6
+
+
+def run(preset: str, seed: int, out: Path) -> dict:
+    config = load_config(preset)
+    report = generate(config, seed, out, workers=2, progress=True)
+    started = time.perf_counter()
+    problems = check(out)
+    check_s = time.perf_counter() - started
+    return {
+        "preset": preset,
+        "seed": seed,
+        "subjects": len(report.subjects),
+        "images": report.images,
+        "size": f"{config.width}x{config.height}",
+        "seconds": round(report.seconds, 1),
+        "images_per_s": round(report.images / report.seconds, 1),
+        "check_s": round(check_s, 1),
+        "problems": len(problems),
+        "disk_mb": round(_size_mb(out), 1),
+        "target_s": TARGET_S if preset == "prior" else None,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--keep", help="write the datasets here instead of a temporary folder")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as scratch:
+        root = Path(args.keep) if args.keep else Path(scratch)
+        rows = [run("prior", SEED, root / "prior"), run("mono", MONO_SEED, root / "mono")]
+        contact_sheet(root / "prior", DOCS / "synth_contact_sheet.png", tile=256, mono_dir=root / "mono")
+    print_table(rows)
+    prior = rows[0]
+    verdict = "PASS" if prior["seconds"] <= TARGET_S and prior["problems"] == 0 else "FAIL"
+    print(f"prior preset: {prior['seconds']} s for {prior['images']} images (target <= {TARGET_S:.0f} s): {verdict}")
+    print(f"wrote {DOCS / 'synth_contact_sheet.png'}")
+    write_json("synth", {"rows": rows, "verdict": verdict})
+
+
+if __name__ == "__main__":
+    main()

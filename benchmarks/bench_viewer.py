@@ -1,0 +1,339 @@
+"""Viewer frame times (scrubbing a motion, orbiting), the speed options, and GL-vs-CPU accuracy.
+
+Sections (all by default):
+
+* scrub: the viewer's per-frame path while scrubbing a motion — model (cached evaluator)
+  + skinning + sort + upload + draw into an RGBA8 framebuffer the size of the default
+  window's scene viewport — for the default ModelConfig (11,156 Gaussians) on 2 threads,
+  for each display mode (I_d with view-dependent colour, I_d without it, I_s).
+* orbit: camera-only frames (sort + draw) of the 10k-Gaussian body scene of bench_gl.py at
+  1280 x 720: the exact path (double and float projection, quads; octagons measured in
+  docs/viewer.md) and the optional approximations (internal resolution, back-face culling),
+  each with its error against the exact image.
+* accuracy: GL against the CPU splatter on avatar renders (3 poses x 8 views, 1280 x 720)
+  with the float and the double projection: pixels over 2e-3, over 1e-4, max, mean.
+* window (only with a DISPLAY): the real Viewer.frame() in a glfw window: idle (cached
+  scene), orbit, scrub.
+
+    .venv/bin/python benchmarks/bench_viewer.py [--frames 40] [--sections scrub orbit accuracy window]
+
+Prints tables and writes benchmarks/results/bench_viewer.json (with the driver and the load
+average: the machine is shared, so medians and minima are both reported).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from bench_gl import body_scene, orbit_camera as body_orbit_camera, summary
+from common import print_table, setup_threads, write_json
+from pghm.data.open_motion import open_motion
+from pghm.gl import SpriteRenderer, driver_info, headless_context
+from pghm.io.avatar import load_avatar
+from pghm.render_video import AvatarDriver, frame_points, orbit_camera
+from pghm.splat import render
+from viewer.demo import development_avatar
+from viewer.settings import BACKFACE_MARGIN
+
+ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_AVATAR = ROOT / "assets" / "avatar.pt"
+SCENE_VIEWPORT = (920, 800)
+"""The default window (1280 x 800) minus the 360-pixel control panel."""
+ORBIT_SIZE = (1280, 720)
+ACCURACY_POSES = (("rest", 0), ("walk", 20), ("squat", 60))
+ACCURACY_VIEWS = 8
+FLIP = 2e-3
+"""The GL-vs-CPU max-error bar; pixels above it are cut-off flips."""
+
+
+def load_average() -> float:
+    return os.getloadavg()[0]
+
+
+def the_avatar():
+    """assets/avatar.pt when shipped, else the development avatar at the default config."""
+    if DEFAULT_AVATAR.is_file():
+        return load_avatar(DEFAULT_AVATAR), str(DEFAULT_AVATAR.relative_to(ROOT))
+    return development_avatar(), "development avatar (viewer.demo, default ModelConfig)"
+
+
+# ------------------------------------------------------------------------------ scrub
+
+
+def bench_scrub(ctx, avatar, frames: int) -> list[dict]:
+    """Consecutive walk frames, as the viewer runs them when the timeline is dragged.
+
+    The display modes take turns frame by frame (one driver and renderer each), so that
+    load from other processes falls on all of them alike.
+    """
+    modes = (
+        ("I_d + view-dependent (default)", "dynamic", True, 1.0),
+        ("I_d, no view-dependent", "dynamic", False, 1.0),
+        ("I_s (static)", "static", False, 1.0),
+        ("I_d + view-dep., approx: 50% resolution", "dynamic", True, 0.5),
+    )
+    drivers = [AvatarDriver(avatar) for _ in modes]
+    renderers = [SpriteRenderer(ctx) for _ in modes]
+    body, shape = drivers[0].body, drivers[0].geometry.shape
+    motion = open_motion("walk", body, shape)
+    identity = avatar.identity_map()
+    width, height = SCENE_VIEWPORT
+    framing = frame_points(drivers[0].geometry.surface.positions.numpy(), 40.0, width / height)
+    rest_root = drivers[0].root_position(drivers[0].rest_pose())
+    screen = ctx.simple_framebuffer((width, height), components=4)
+    names = ("model", "skinning", "sort", "upload", "draw", "total")
+    stages = [{name: [] for name in names} for _ in modes]
+    try:
+        for k in range(frames + 2):
+            for (label, gaussians, view_dependent, scale), driver, renderer, record in zip(
+                modes, drivers, renderers, stages
+            ):
+                start = time.perf_counter()
+                pose = motion.pose(k % motion.num_frames)
+                shift = driver.root_position(pose) - rest_root  # the viewer's camera follows the root
+                target = np.asarray(framing.target) + np.array([shift[0], 0.0, shift[2]])
+                camera = orbit_camera(target, 20.0, 5.0, framing.distance, 40.0, width, height)
+                arrays = driver.evaluate(identity, pose, camera.centre, gaussians, view_dependent)
+                upload = time.perf_counter()
+                renderer.set_gaussians(arrays.means, arrays.scales, arrays.colors, arrays.opacities)
+                set_ms = (time.perf_counter() - upload) * 1e3
+                size = (round(width * scale), round(height * scale))
+                internal = orbit_camera(target, 20.0, 5.0, framing.distance, 40.0, *size)
+                timings = renderer.draw(internal, (0.16, 0.17, 0.19), target=screen)
+                total = (time.perf_counter() - start) * 1e3
+                if k < 2:  # warm-up: shader JIT, first allocations
+                    continue
+                record["model"].append(driver.times.model_ms)
+                record["skinning"].append(driver.times.skinning_ms)
+                record["sort"].append(timings.sort_ms)
+                record["upload"].append(set_ms + timings.upload_ms)
+                record["draw"].append(timings.draw_ms)
+                record["total"].append(total)
+    finally:
+        for renderer in renderers:
+            renderer.release()
+        screen.release()
+    rows = []
+    for (label, *_), record in zip(modes, stages):
+        row = {"display": label, "gaussians": drivers[0].geometry.num_gaussians}
+        row.update({f"{name}_ms": float(np.median(values)) for name, values in record.items()})
+        row["total_min_ms"] = float(np.min(record["total"]))
+        rows.append(row)
+    rows[-1]["load"] = load_average()
+    return rows
+
+
+# ------------------------------------------------------------------------------ orbit
+
+
+def _float_target(ctx, size):
+    return ctx.framebuffer(color_attachments=[ctx.texture(size, 4, dtype="f4")])
+
+
+def _read(fbo) -> np.ndarray:
+    width, height = fbo.size
+    return np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(height, width, 4)[..., :3]
+
+
+def bench_orbit(ctx, frames: int) -> list[dict]:
+    """Camera-only frames of the body scene; each option's time and its error against the exact image."""
+    means, scales, colors, opacities = body_scene(10_000)
+    normals = 2.0 * colors - 1.0  # body_scene colours each Gaussian by its normal: c = 0.5 + 0.5 n
+    angles = np.linspace(0, 2 * np.pi, frames, endpoint=False)
+    screen = ctx.simple_framebuffer(ORBIT_SIZE, components=4)
+    exact_target, option_target = _float_target(ctx, ORBIT_SIZE), _float_target(ctx, ORBIT_SIZE)
+    exact = SpriteRenderer(ctx)
+    exact.set_gaussians(means, scales, colors, opacities)
+    options = (
+        ("exact, double projection (default)", "double", 1.0, False),
+        ("exact, float projection (GL 3.3)", "float", 1.0, False),
+        ("approx: internal resolution 75%", "double", 0.75, False),
+        ("approx: internal resolution 50%", "double", 0.5, False),
+        ("approx: cull back-facing", "double", 1.0, True),
+        ("approx: cull back-facing + 50%", "double", 0.5, True),
+    )
+    renderers = [SpriteRenderer(ctx, precision=option[1]) for option in options]
+    records = [{"times": [], "max": [], "mean": [], "drawn": []} for _ in options]
+    try:
+        # The options take turns view by view, so that load from other processes falls on all alike.
+        for k, angle in enumerate(np.concatenate([angles[:2], angles])):
+            for (label, precision, scale, cull), renderer, record in zip(options, renderers, records):
+                camera = body_orbit_camera(angle, scale)
+                start = time.perf_counter()
+                if cull:
+                    centre = camera.centre.double().numpy()
+                    view = (centre[None] - means).astype(np.float32)
+                    cosine = (normals * view).sum(1) / np.linalg.norm(view, axis=1)
+                    keep = cosine >= -BACKFACE_MARGIN
+                    renderer.set_gaussians(means[keep], scales[keep], colors[keep], opacities[keep])
+                    record["drawn"].append(int(keep.sum()))
+                elif k == 0:
+                    renderer.set_gaussians(means, scales, colors, opacities)
+                renderer.draw(camera, (1.0, 1.0, 1.0), target=screen)
+                if k < 2:  # warm-up
+                    continue
+                record["times"].append((time.perf_counter() - start) * 1e3)
+                renderer.draw(camera, (1.0, 1.0, 1.0), target=option_target, viewport=(0, 0, *ORBIT_SIZE))
+                exact.draw(body_orbit_camera(angle), (1.0, 1.0, 1.0), target=exact_target)
+                error = np.abs(_read(option_target) - _read(exact_target))
+                record["max"].append(float(error.max()))
+                record["mean"].append(float(error.mean()))
+        rows = []
+        for (label, *_), record in zip(options, records):
+            stats = summary(record["times"])
+            rows.append({
+                "option": label,
+                "gaussians_drawn": int(np.mean(record["drawn"])) if record["drawn"] else len(means),
+                "median_ms": stats["median_ms"],
+                "min_ms": stats["min_ms"],
+                "p90_ms": stats["p90_ms"],
+                "max_error": max(record["max"]),
+                "mean_error": float(np.mean(record["mean"])),
+            })
+        rows[-1]["load"] = load_average()
+    finally:
+        for renderer in (exact, *renderers):
+            renderer.release()
+        for fbo in (screen, exact_target, option_target):
+            for attachment in fbo.color_attachments:
+                attachment.release()
+            fbo.release()
+    return rows
+
+
+# --------------------------------------------------------------------------- accuracy
+
+
+def bench_accuracy(ctx, avatar) -> list[dict]:
+    """GL (float and double projection) against the CPU splatter on avatar renders."""
+    driver = AvatarDriver(avatar)
+    identity = avatar.identity_map()
+    width, height = ORBIT_SIZE
+    scenes = []
+    for name, frame in ACCURACY_POSES:
+        pose = open_motion(name, driver.body, driver.geometry.shape).pose(frame)
+        arrays = driver.evaluate(identity, pose, np.array([0.0, 0.0, 3.0]))
+        framing = frame_points(arrays.means, 40.0, width / height)
+        cameras = [
+            orbit_camera(framing.target, 45.0 * k + 10.0, 10.0, framing.distance, 40.0, width, height)
+            for k in range(ACCURACY_VIEWS)
+        ]
+        tensors = [torch.from_numpy(a) for a in (arrays.means, arrays.scales, arrays.colors, arrays.opacities)]
+        truths = [render(*tensors, camera).rgb.numpy() for camera in cameras]
+        scenes.append((arrays, cameras, truths))
+    rows = []
+    for precision in ("double", "float"):
+        renderer = SpriteRenderer(ctx, precision=precision)
+        errors, times = [], []
+        for arrays, cameras, truths in scenes:
+            renderer.set_gaussians(arrays.means, arrays.scales, arrays.colors, arrays.opacities)
+            for camera, truth in zip(cameras, truths):
+                start = time.perf_counter()
+                image = renderer.render(camera, (1.0, 1.0, 1.0)).rgb
+                times.append((time.perf_counter() - start) * 1e3)
+                errors.append(np.abs(image - truth).max(axis=-1))
+        renderer.release()
+        errors = np.stack(errors)
+        rows.append({
+            "projection": precision,
+            "images": len(errors),
+            "pixels": int(errors.size),
+            f"pixels_over_{FLIP:g}": int((errors > FLIP).sum()),
+            "pixels_over_1e-4": int((errors > 1e-4).sum()),
+            "max_error": float(errors.max()),
+            "mean_error": float(errors.mean()),
+            "render_median_ms": float(np.median(times)),
+        })
+    return rows
+
+
+# ----------------------------------------------------------------------------- window
+
+
+def bench_window(avatar_path: Path, frames: int) -> list[dict]:
+    """The real viewer in a glfw window (needs DISPLAY): Viewer.frame() per situation."""
+    from viewer.viewer import Viewer
+
+    viewer = Viewer(avatar_path)
+    viewer.setup()
+    rows = []
+    try:
+        viewer.open_motion("walk")
+        for _ in range(3):
+            viewer.frame()
+
+        def measure(label: str, action) -> None:
+            times = []
+            for k in range(frames):
+                action(k)
+                start = time.perf_counter()
+                viewer.frame()
+                times.append((time.perf_counter() - start) * 1e3)
+            stats = summary(times)
+            rows.append({"situation": label, **stats, "load": load_average()})
+
+        measure("idle (scene cached, UI only)", lambda k: None)
+        measure("orbit (view branch + sort + draw)", lambda k: viewer.orbit(3.0, 0.0))
+        measure("scrub (model + skinning + sort + upload + draw)", lambda k: viewer.scrub_to(1 + k % 119))
+        viewer.set_view_dependent(False)
+        measure("orbit, view-dependent off (sort + draw)", lambda k: viewer.orbit(3.0, 0.0))
+    finally:
+        viewer.teardown()
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=40, help="frames per measurement")
+    parser.add_argument("--sections", nargs="+", default=["scrub", "orbit", "accuracy", "window"])
+    args = parser.parse_args()
+    setup_threads()
+    torch.manual_seed(0)
+    avatar, avatar_name = the_avatar()
+    ctx = headless_context()
+    driver = str(driver_info(ctx))
+    print(f"driver: {driver}; avatar: {avatar_name}; load average {load_average():.2f}")
+    results: dict = {"driver": driver, "avatar": avatar_name, "load_before": load_average()}
+    if "scrub" in args.sections:
+        width, height = SCENE_VIEWPORT
+        print(f"\nScrubbing the walk, scene viewport {width} x {height}, ms (medians; total_min = least disturbed)")
+        results["scrub"] = bench_scrub(ctx, avatar, args.frames)
+        print_table(results["scrub"])
+    if "orbit" in args.sections:
+        width, height = ORBIT_SIZE
+        print(f"\nOrbit-only frames, 10k-Gaussian body scene, {width} x {height}, ms; error vs the exact image")
+        results["orbit"] = bench_orbit(ctx, args.frames)
+        print_table(results["orbit"])
+    if "accuracy" in args.sections:
+        width, height = ORBIT_SIZE
+        print(f"\nGL vs CPU splatter, {len(ACCURACY_POSES)} poses x {ACCURACY_VIEWS} views at {width} x {height}")
+        results["accuracy"] = bench_accuracy(ctx, avatar)
+        print_table(results["accuracy"])
+    ctx.release()
+    if "window" in args.sections:
+        if os.environ.get("DISPLAY"):
+            import tempfile
+
+            from pghm.io.avatar import save_avatar
+
+            with tempfile.TemporaryDirectory() as folder:
+                path = DEFAULT_AVATAR if DEFAULT_AVATAR.is_file() else Path(folder) / "avatar.pt"
+                if not DEFAULT_AVATAR.is_file():
+                    save_avatar(path, avatar)
+                print("\nThe viewer in a glfw window (default 1280 x 800), Viewer.frame() ms")
+                results["window"] = bench_window(path, args.frames)
+                print_table(results["window"])
+        else:
+            print("\nwindow: skipped (no DISPLAY; run under Xvfb for the in-window numbers)")
+    results["load_after"] = load_average()
+    write_json("bench_viewer", results)
+
+
+if __name__ == "__main__":
+    main()

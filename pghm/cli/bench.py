@@ -1,0 +1,65 @@
+"""``pghm bench``: named benchmarks that print a table and write JSON (and a plot).
+
+    pghm bench splat [--gaussians N --resolution R --repeats K --threads T --out DIR --plot PNG]
+
+Benchmarks live in :data:`BENCHMARKS` (name -> function of the parsed arguments); add one
+by adding an entry. ``splat`` sweeps the splatter's optional approximations on the body
+scene and reports, per setting, median time and error against the exact image.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from pathlib import Path
+
+from pghm.errors import PghmError
+
+DEFAULT_OUT = Path("benchmarks") / "results"
+"""Where JSON results go unless --out says otherwise."""
+
+
+def _splat(args: argparse.Namespace) -> int:
+    import torch
+
+    from pghm.splat.benchmark import format_table, run_sweep
+
+    torch.set_num_threads(args.threads)
+    output = args.out / "bench_splat_sweep.json"
+    plot = args.plot if args.plot is not None else Path("docs") / "splat_pareto.png"
+    rows, front = run_sweep(args.gaussians or 10_000, args.resolution or 256, args.repeats or 15, output, plot)
+    print(format_table(rows, ["setting", "forward_ms", "forward_backward_ms", "max_abs", "psnr"]))
+    print(f"Pareto frontier (forward+backward time vs max abs error): {', '.join(front)}")
+    print(f"wrote {output} and {plot}")
+    return 0
+
+
+BENCHMARKS: dict[str, Callable[[argparse.Namespace], int]] = {"splat": _splat}
+"""Benchmark name -> function of the parsed arguments returning an exit status."""
+
+
+def _positive(text: str) -> int:
+    value = int(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {value}")
+    return value
+
+
+def _run(args: argparse.Namespace) -> int:
+    if args.name not in BENCHMARKS:
+        raise PghmError(f"unknown benchmark '{args.name}', expected one of {', '.join(sorted(BENCHMARKS))}")
+    return BENCHMARKS[args.name](args)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("bench", help="run a named benchmark (prints a table, writes JSON and a plot)")
+    parser.add_argument("name", metavar="NAME", help=f"benchmark to run: {', '.join(sorted(BENCHMARKS))}")
+    parser.add_argument("--gaussians", type=_positive, help="scene size N (splat: 10000)")
+    parser.add_argument("--resolution", type=_positive, help="image side in pixels (splat: 256)")
+    parser.add_argument("--repeats", type=_positive, help="timed repeats per measurement (splat: 15)")
+    parser.add_argument("--threads", type=_positive, default=2, help="torch threads (default 2, the target machine)")
+    parser.add_argument(
+        "--out", type=Path, default=DEFAULT_OUT, help=f"directory for JSON results (default {DEFAULT_OUT})"
+    )
+    parser.add_argument("--plot", type=Path, help="PNG path for the plot (splat: docs/splat_pareto.png)")
+    parser.set_defaults(func=_run)

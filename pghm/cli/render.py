@@ -1,0 +1,100 @@
+"""``pghm render``: frames of an avatar without a window (EGL offscreen GL, or the CPU splatter).
+
+    pghm render avatar.pt [--motion FILE_OR_NAME] [--orbit] [--size WxH] [--fps F]
+                          [--frames N] [--backend auto|gl|cpu] --out out.mp4|out.png|dir/
+
+A thin wrapper over :func:`pghm.render_video.render_video`; see docs/viewer.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from pghm.errors import PghmError
+from pghm.render_video import DEFAULT_FPS, DEFAULT_SIZE, RenderJob, render_video
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """'640x480' -> (640, 480)."""
+    try:
+        width, height = (int(part) for part in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must look like 640x480, got {text!r}") from None
+    if width < 1 or height < 1:
+        raise argparse.ArgumentTypeError(f"size must be positive, got {text!r}")
+    return width, height
+
+
+def parse_colour(text: str) -> tuple[float, float, float]:
+    """'1,1,1' (floats in [0, 1]) -> (1.0, 1.0, 1.0)."""
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"colour must look like 1,1,1, got {text!r}") from None
+    if len(values) != 3 or not all(0.0 <= v <= 1.0 for v in values):
+        raise argparse.ArgumentTypeError(f"colour must be three numbers in [0, 1], got {text!r}")
+    return values
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "render",
+        help="render an avatar to an MP4, a PNG or a PNG sequence (headless)",
+        description="Render an avatar through the viewer's GL path on an offscreen EGL context "
+        "(no display needed), or through the CPU splatter with --backend cpu.",
+    )
+    parser.add_argument("avatar", type=Path, help="avatar or prior file (.pt)")
+    parser.add_argument("--out", type=Path, required=True, help="out.mp4, out.png (one frame) or a directory")
+    parser.add_argument("--motion", help="motion file (.npz, .bvh) or procedural name (walk, squat, ...)")
+    parser.add_argument("--orbit", action="store_true", help="turn the camera once around the body")
+    parser.add_argument("--size", type=parse_size, default=DEFAULT_SIZE, help="WxH pixels (default 640x480)")
+    parser.add_argument("--fps", type=float, default=DEFAULT_FPS, help="frames per second (default 30)")
+    parser.add_argument("--frames", type=int, help="number of frames (default: the motion once / one orbit / 1)")
+    parser.add_argument("--start", type=float, default=0.0, help="seconds into the motion of the first frame")
+    parser.add_argument(
+        "--backend", choices=("auto", "gl", "cpu"), default="auto",
+        help="gl (OpenGL through EGL), cpu (the CPU splatter) or auto (default: gl if EGL works, else cpu)",
+    )
+    parser.add_argument("--identity", type=int, default=0, help="identity of a prior's bank")
+    parser.add_argument("--static", action="store_true", help="render the static Gaussians (I_s)")
+    parser.add_argument("--no-view-dependent", action="store_true", help="leave out the view-dependent colour")
+    parser.add_argument("--background", type=parse_colour, default=(1.0, 1.0, 1.0), help="r,g,b in [0, 1]")
+    parser.add_argument("--pitch", type=float, default=0.0, help="camera elevation, degrees")
+    parser.add_argument("--yaw", type=float, default=0.0, help="camera azimuth, degrees (0: front)")
+    parser.add_argument("--no-follow", action="store_true", help="keep the camera still when the body moves")
+    parser.add_argument("--body-model-path", help="the SMPL-X model file, for SMPL-X avatars")
+    parser.set_defaults(func=run_render)
+
+
+def run_render(args: argparse.Namespace) -> int:
+    if args.fps <= 0:
+        raise PghmError(f"--fps must be positive, got {args.fps}")
+    job = RenderJob(
+        avatar=args.avatar,
+        out=args.out,
+        motion=args.motion,
+        orbit=args.orbit,
+        size=args.size,
+        fps=args.fps,
+        frames=args.frames,
+        start=args.start,
+        backend=args.backend,
+        identity=args.identity,
+        gaussians="static" if args.static else "dynamic",
+        view_dependent=not args.no_view_dependent,
+        background=args.background,
+        pitch=args.pitch,
+        yaw=args.yaw,
+        follow=not args.no_follow,
+        body_model_path=args.body_model_path,
+    )
+    summary = render_video(job, log=lambda line: print(f"pghm render: {line}", file=sys.stderr))
+    width, height = summary.size
+    per_frame = ", ".join(f"{name[:-3]} {value:.1f}" for name, value in summary.timings.items())
+    print(
+        f"wrote {summary.path}: {summary.frames} frame(s) {width}x{height} at {summary.fps:g} fps "
+        f"in {summary.seconds:.1f} s ({summary.driver}; ms per frame: {per_frame})"
+    )
+    return 0

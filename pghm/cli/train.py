@@ -1,0 +1,125 @@
+"""``pghm train-prior``, ``pghm fit`` and ``pghm eval``: thin layers over pghm.train."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+
+from pghm.model import ModelConfig
+
+
+def _model_arguments(parser: argparse.ArgumentParser) -> None:
+    defaults = ModelConfig()
+    group = parser.add_argument_group("model (prior training only)")
+    group.add_argument("--uv-resolution", type=int, default=defaults.uv_resolution, help="L, texels per side (default %(default)s)")
+    group.add_argument("--latent-channels", type=int, default=defaults.latent_channels, help="C (default %(default)s)")
+    group.add_argument("--head", choices=("multi", "single"), default=defaults.head, help="U-Net heads (default %(default)s)")
+
+
+def _loop_arguments(parser: argparse.ArgumentParser, prefix: str, steps: int, images: int) -> None:
+    parser.add_argument(f"--{prefix}steps", type=int, default=steps, help="optimisation steps (default %(default)s)")
+    parser.add_argument(f"--{prefix}images", type=int, default=images, help="images per identity group (default %(default)s)")
+
+
+def _common(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--seed", type=int, default=0, help="seeds the batch plan (default %(default)s)")
+    parser.add_argument("--checkpoint-every", type=int, default=100, help="steps between checkpoints (default %(default)s)")
+    parser.add_argument("--resume", action="store_true", help="continue from OUT.ckpt")
+    parser.add_argument("--no-pose-refinement", action="store_true", help="keep the stored poses fixed")
+    parser.add_argument("--no-lpips", action="store_true", help="leave the LPIPS term out even if its weights exist")
+    parser.add_argument("--body-model-path", default=None, help="your SMPL-X model file, for SMPL-X data")
+
+
+def register(subparsers) -> None:
+    prior = subparsers.add_parser("train-prior", help="train a prior over many identities (multi-view data)")
+    prior.add_argument("data_dir", help="a folder of subject folders (pghm synth --config prior)")
+    prior.add_argument("--out", required=True, help="prior file to write, e.g. prior.pt")
+    _loop_arguments(prior, "", 3000, 4)
+    prior.add_argument("--shards", type=int, default=1, help="identity groups per step; a multiple of the torchrun processes")
+    prior.add_argument("--lr", type=float, default=1e-3, help="network learning rate (default %(default)s)")
+    prior.add_argument("--identities", type=int, default=None, help="train on the first N subjects only (default: all)")
+    _model_arguments(prior)
+    _common(prior)
+    prior.set_defaults(func=run_train_prior)
+
+    fit = subparsers.add_parser("fit", help="personalise a prior to one subject (monocular video)")
+    fit.add_argument("subject_dir")
+    fit.add_argument("--prior", required=True, help="prior file (pghm train-prior), or 'scratch' to train from nothing")
+    fit.add_argument("--out", required=True, help="avatar file to write, e.g. avatar.pt")
+    _loop_arguments(fit, "stage1-", 500, 2)
+    _loop_arguments(fit, "stage2-", 500, 2)
+    _common(fit)
+    fit.set_defaults(func=run_fit)
+
+    evaluate = subparsers.add_parser("eval", help="PSNR/SSIM/LPIPS of an avatar on a subject's held-out frames")
+    evaluate.add_argument("avatar")
+    evaluate.add_argument("subject_dir")
+    evaluate.add_argument("--split", default="test")
+    evaluate.add_argument("--report", default=None, help="JSON report path (default: AVATAR.eval.json)")
+    evaluate.add_argument("--strip", default=None, help="PNG strip path (default: AVATAR.eval.png)")
+    evaluate.add_argument("--body-model-path", default=None)
+    evaluate.set_defaults(func=run_eval)
+
+
+def _logging() -> None:
+    logging.basicConfig(level=logging.INFO, format="pghm: %(message)s", stream=sys.stderr)
+
+
+def run_train_prior(args: argparse.Namespace) -> int:
+    from pghm.train.loop import LoopConfig
+    from pghm.train.prior import PriorConfig, train_prior
+
+    _logging()
+    model = ModelConfig(uv_resolution=args.uv_resolution, latent_channels=args.latent_channels, head=args.head)
+    loop = LoopConfig(
+        steps=args.steps, shards=args.shards, images_per_shard=args.images, seed=args.seed, checkpoint_every=args.checkpoint_every
+    )
+    config = PriorConfig(
+        model=model,
+        loop=loop,
+        network_lr=args.lr,
+        refine_poses=not args.no_pose_refinement,
+        lpips=not args.no_lpips,
+        body_model_path=args.body_model_path,
+        max_identities=args.identities,
+    )
+    avatar = train_prior(args.data_dir, args.out, config, resume=args.resume)
+    print(f"wrote {args.out}: {avatar.metadata['identities']} identities, {avatar.metadata['steps']} steps, {avatar.metadata['seconds']} s")
+    return 0
+
+
+def run_fit(args: argparse.Namespace) -> int:
+    from pghm.train.fit import FitConfig, fit
+    from pghm.train.loop import LoopConfig
+
+    _logging()
+    stages = [
+        LoopConfig(steps=steps, images_per_shard=images, seed=args.seed, checkpoint_every=args.checkpoint_every)
+        for steps, images in ((args.stage1_steps, args.stage1_images), (args.stage2_steps, args.stage2_images))
+    ]
+    config = FitConfig(
+        stage1=stages[0],
+        stage2=stages[1],
+        refine_poses=not args.no_pose_refinement,
+        lpips=not args.no_lpips,
+        body_model_path=args.body_model_path,
+    )
+    prior = ModelConfig() if args.prior == "scratch" else args.prior
+    avatar = fit(args.subject_dir, prior, args.out, config, resume=args.resume)
+    print(f"wrote {args.out}: {avatar.metadata['steps']} steps, {avatar.metadata['seconds']} s")
+    return 0
+
+
+def run_eval(args: argparse.Namespace) -> int:
+    from pghm.train.evaluate import evaluate
+
+    report = args.report or f"{args.avatar}.eval.json"
+    strip = args.strip or f"{args.avatar}.eval.png"
+    result = evaluate(args.avatar, args.subject_dir, report, strip, split=args.split, body_model_path=args.body_model_path)
+    print(json.dumps(result.summary()))
+    print(f"wrote {report} and {strip}")
+    return 0
+
+

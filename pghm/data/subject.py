@@ -1,0 +1,674 @@
+"""The on-disk subject format: writer, lazy reader and checker (see docs/data.md).
+
+A subject is one folder:
+
+    images/NNNNNN.png   RGB, white background, image i named with six digits
+    masks/NNNNNN.png    8-bit grey, foreground 255, background 0
+    cameras.npz         K (n, 3, 3), world_to_camera (n, 4, 4) (OpenCV axes: x right,
+                        y down, z forward), height (n,), width (n,); optional
+                        frame_index (n,), view_index (n,) (multi-view captures)
+    poses.npz           rotations (n, J, 3) axis-angle per bone in rest-aligned axes,
+                        translation (n, 3) root translation in metres (pghm.body.pose),
+                        shape (S,), body (backend name), bone_names (J,); optional
+                        rotations_true, translation_true (exact poses, synthetic data)
+    splits.json         {"train": [image indices], "test": [...], ...}
+    meta.json           {"format": "pghm-subject", "format_version": 1, ...}
+
+A dataset (the prior's training set) is a folder of subject folders with a meta.json
+{"format": "pghm-dataset", "format_version": 1, "subjects": [folder names], ...}.
+
+:class:`Subject` keeps the small arrays in memory and reads an image only when its
+:class:`Frame` is requested. :func:`check` streams through a subject or dataset, reading
+only PNG headers for images and decoding one mask at a time.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from pghm.errors import DatasetError
+from pghm.io.atomic import atomic_write_bytes
+
+SUBJECT_FORMAT = "pghm-subject"
+DATASET_FORMAT = "pghm-dataset"
+FORMAT_VERSION = 1
+
+IMAGE_DIGITS = 6
+CAMERA_KEYS = ("K", "world_to_camera", "height", "width")
+POSE_KEYS = ("rotations", "translation", "shape", "body", "bone_names")
+
+ZIP_TIME = (1980, 1, 1, 0, 0, 0)
+"""Timestamp of every member of the .npz files we write, so equal arrays give equal bytes
+(``numpy.savez`` stamps the current time)."""
+
+ROTATION_TOLERANCE = 1e-3
+"""How far R^T R of a world_to_camera may be from the identity (float32 storage)."""
+
+FRAME_MARGIN = 0.5
+"""The subject's centre may project up to this fraction of the image size outside it
+(a body partly out of frame) before the checker reports it."""
+
+
+def image_name(index: int) -> str:
+    """File name of image ``index``: six zero-padded digits, ``000042.png``."""
+    return f"{index:0{IMAGE_DIGITS}d}.png"
+
+
+@dataclass
+class SubjectArrays:
+    """Everything about a subject except its images: n images, J bones, S shape values.
+
+    Attributes:
+        K: (n, 3, 3) intrinsics, pixels.
+        world_to_camera: (n, 4, 4) extrinsics, OpenCV axes.
+        height: (n,) image heights H.
+        width: (n,) image widths W.
+        rotations: (n, J, 3) axis-angle pose of each image (as an estimator gives it).
+        translation: (n, 3) root translation of each image, metres.
+        shape: (S,) body shape parameters.
+        body: body backend name ("anny", "smplx").
+        bone_names: J bone names.
+        splits: split name -> image indices.
+        frame_index: (n,) time step of each image (None: image i is frame i).
+        view_index: (n,) camera of each image (None: all 0).
+        rotations_true: (n, J, 3) exact pose (synthetic data), or None.
+        translation_true: (n, 3) exact translation, or None.
+    """
+
+    K: np.ndarray
+    world_to_camera: np.ndarray
+    height: np.ndarray
+    width: np.ndarray
+    rotations: np.ndarray
+    translation: np.ndarray
+    shape: np.ndarray
+    body: str
+    bone_names: list[str]
+    splits: dict[str, list[int]]
+    frame_index: np.ndarray | None = None
+    view_index: np.ndarray | None = None
+    rotations_true: np.ndarray | None = None
+    translation_true: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.K)
+
+
+def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
+    """An ``.npz`` archive of ``arrays`` with fixed timestamps (reproducible bytes).
+
+    Readable with ``numpy.load(..., allow_pickle=False)``: strings are stored as fixed-width
+    unicode arrays, never as objects.
+    """
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        for name, array in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=ZIP_TIME)
+            info.compress_type = zipfile.ZIP_DEFLATED
+            info.external_attr = 0o644 << 16
+            member = io.BytesIO()
+            np.lib.format.write_array(member, np.asanyarray(array), allow_pickle=False)
+            archive.writestr(info, member.getvalue())
+    return buffer.getvalue()
+
+
+def json_bytes(value: object) -> bytes:
+    """Stable JSON: sorted keys, two-space indent, trailing newline."""
+    return (json.dumps(value, indent=2, sort_keys=True) + "\n").encode("utf-8")
+
+
+def write_subject(directory: str | Path, arrays: SubjectArrays, meta: dict) -> None:
+    """Write a subject's cameras.npz, poses.npz, splits.json and meta.json (atomically).
+
+    Images are written separately with :func:`write_image`. ``meta`` gets the format
+    name and version added; write it last, when every image is on disk.
+    """
+    directory = Path(directory)
+    n = len(arrays)
+    cameras = {
+        "K": np.asarray(arrays.K, dtype=np.float32),
+        "world_to_camera": np.asarray(arrays.world_to_camera, dtype=np.float32),
+        "height": np.asarray(arrays.height, dtype=np.int32),
+        "width": np.asarray(arrays.width, dtype=np.int32),
+    }
+    if arrays.frame_index is not None:
+        cameras["frame_index"] = np.asarray(arrays.frame_index, dtype=np.int32)
+    if arrays.view_index is not None:
+        cameras["view_index"] = np.asarray(arrays.view_index, dtype=np.int32)
+    poses = {
+        "rotations": np.asarray(arrays.rotations, dtype=np.float32),
+        "translation": np.asarray(arrays.translation, dtype=np.float32),
+        "shape": np.asarray(arrays.shape, dtype=np.float32),
+        "body": np.str_(arrays.body),
+        "bone_names": np.array(arrays.bone_names, dtype=np.str_),
+    }
+    if arrays.rotations_true is not None:
+        poses["rotations_true"] = np.asarray(arrays.rotations_true, dtype=np.float32)
+        poses["translation_true"] = np.asarray(arrays.translation_true, dtype=np.float32)
+    for name, indices in arrays.splits.items():
+        if any(not 0 <= int(i) < n for i in indices):
+            raise DatasetError(f"split '{name}' lists an image index outside 0..{n - 1}")
+    atomic_write_bytes(directory / "cameras.npz", npz_bytes(cameras))
+    atomic_write_bytes(directory / "poses.npz", npz_bytes(poses))
+    splits = {name: [int(i) for i in indices] for name, indices in arrays.splits.items()}
+    atomic_write_bytes(directory / "splits.json", json_bytes(splits))
+    atomic_write_bytes(
+        directory / "meta.json", json_bytes({**meta, "format": SUBJECT_FORMAT, "format_version": FORMAT_VERSION})
+    )
+
+
+def png_bytes(pixels: np.ndarray, compress_level: int) -> bytes:
+    """PNG encoding of a uint8 (H, W, 3) RGB or (H, W) grey image (no timestamp chunks)."""
+    buffer = io.BytesIO()
+    Image.fromarray(pixels).save(buffer, format="PNG", compress_level=compress_level)
+    return buffer.getvalue()
+
+
+def write_image(directory: str | Path, index: int, rgb: np.ndarray, mask: np.ndarray, compress_level: int = 1) -> None:
+    """Write image ``index`` and its mask into a subject folder.
+
+    Args:
+        directory: the subject folder (``images/`` and ``masks/`` are created).
+        index: image index.
+        rgb: (H, W, 3) uint8, composited on white.
+        mask: (H, W) uint8, 0 or 255.
+        compress_level: zlib level 0-9; 1 is ~5x faster than the default 6 for ~15 % more bytes.
+    """
+    directory = Path(directory)
+    for folder, pixels in (("images", rgb), ("masks", mask)):
+        path = directory / folder / image_name(index)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(png_bytes(pixels, compress_level))
+
+
+def write_dataset_meta(directory: str | Path, subjects: list[str], meta: dict) -> None:
+    """Write a dataset's top-level meta.json listing its subject folders."""
+    body = {**meta, "format": DATASET_FORMAT, "format_version": FORMAT_VERSION, "subjects": list(subjects)}
+    atomic_write_bytes(Path(directory) / "meta.json", json_bytes(body))
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One image of a subject with everything needed to render it.
+
+    Attributes:
+        index: image index in the subject.
+        image: (H, W, 3) float32 RGB in [0, 1], white background.
+        mask: (H, W) float32, 1 on the subject, 0 elsewhere.
+        K: (3, 3) float32 intrinsics.
+        world_to_camera: (4, 4) float32 extrinsics, OpenCV axes.
+        rotations: (J, 3) float32 axis-angle pose.
+        translation: (3,) float32 root translation.
+        frame_index: time step.
+        view_index: camera.
+        rotations_true: (J, 3) exact pose, or None for real captures.
+        translation_true: (3,) exact translation, or None.
+    """
+
+    index: int
+    image: np.ndarray
+    mask: np.ndarray
+    K: np.ndarray
+    world_to_camera: np.ndarray
+    rotations: np.ndarray
+    translation: np.ndarray
+    frame_index: int
+    view_index: int
+    rotations_true: np.ndarray | None = None
+    translation_true: np.ndarray | None = None
+
+    @property
+    def height(self) -> int:
+        return self.image.shape[0]
+
+    @property
+    def width(self) -> int:
+        return self.image.shape[1]
+
+
+def _read_json(path: Path) -> object:
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing")
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise DatasetError(f"{path}: unreadable JSON ({error})") from None
+
+
+def _read_npz(path: Path, required: tuple[str, ...]) -> dict[str, np.ndarray]:
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {key: data[key] for key in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
+        raise DatasetError(f"{path}: unreadable ({error})") from None
+    missing = [key for key in required if key not in arrays]
+    if missing:
+        raise DatasetError(f"{path}: missing {', '.join(missing)}")
+    return arrays
+
+
+def _read_arrays(directory: Path) -> SubjectArrays:
+    """The subject's arrays, with every shape checked (raises DatasetError)."""
+    cameras = _read_npz(directory / "cameras.npz", CAMERA_KEYS)
+    poses = _read_npz(directory / "poses.npz", POSE_KEYS)
+    n = len(cameras["K"])
+    bones = [str(name) for name in np.atleast_1d(poses["bone_names"])]
+    expected = {
+        ("cameras.npz", "K"): (cameras["K"], (n, 3, 3)),
+        ("cameras.npz", "world_to_camera"): (cameras["world_to_camera"], (n, 4, 4)),
+        ("cameras.npz", "height"): (cameras["height"], (n,)),
+        ("cameras.npz", "width"): (cameras["width"], (n,)),
+        ("poses.npz", "rotations"): (poses["rotations"], (n, len(bones), 3)),
+        ("poses.npz", "translation"): (poses["translation"], (n, 3)),
+    }
+    for key in ("frame_index", "view_index"):
+        if key in cameras:
+            expected[("cameras.npz", key)] = (cameras[key], (n,))
+    for key, like in (("rotations_true", "rotations"), ("translation_true", "translation")):
+        if key in poses:
+            expected[("poses.npz", key)] = (poses[key], poses[like].shape)
+    for (file, key), (array, shape) in expected.items():
+        if array.shape != shape:
+            raise DatasetError(f"{directory / file}: '{key}' has shape {array.shape}, expected {shape}")
+    splits = _read_json(directory / "splits.json")
+    if not isinstance(splits, dict) or not all(isinstance(v, list) for v in splits.values()):
+        raise DatasetError(f"{directory / 'splits.json'}: expected {{\"train\": [indices], ...}}")
+    for name, indices in splits.items():
+        if not all(isinstance(i, int) and 0 <= i < n for i in indices):
+            raise DatasetError(f"{directory / 'splits.json'}: split '{name}' has an index outside 0..{n - 1}")
+    return SubjectArrays(
+        K=cameras["K"].astype(np.float32),
+        world_to_camera=cameras["world_to_camera"].astype(np.float32),
+        height=cameras["height"].astype(np.int64),
+        width=cameras["width"].astype(np.int64),
+        rotations=poses["rotations"].astype(np.float32),
+        translation=poses["translation"].astype(np.float32),
+        shape=np.atleast_1d(poses["shape"]).astype(np.float32),
+        body=str(poses["body"]),
+        bone_names=bones,
+        splits={str(name): list(indices) for name, indices in splits.items()},
+        frame_index=cameras["frame_index"].astype(np.int64) if "frame_index" in cameras else None,
+        view_index=cameras["view_index"].astype(np.int64) if "view_index" in cameras else None,
+        rotations_true=poses["rotations_true"].astype(np.float32) if "rotations_true" in poses else None,
+        translation_true=poses["translation_true"].astype(np.float32) if "translation_true" in poses else None,
+    )
+
+
+def read_rgb(path: Path) -> np.ndarray:
+    """(H, W, 3) float32 in [0, 1] from a PNG (grey or RGBA files are converted to RGB)."""
+    try:
+        with Image.open(path) as image:
+            pixels = np.asarray(image.convert("RGB"))
+    except (OSError, ValueError) as error:
+        raise DatasetError(f"{path}: unreadable image ({error})") from None
+    return pixels.astype(np.float32) / 255.0
+
+
+def read_mask(path: Path) -> np.ndarray:
+    """(H, W) float32 in {0, 1} from a mask PNG (pixels >= 128 are foreground)."""
+    try:
+        with Image.open(path) as image:
+            pixels = np.asarray(image.convert("L"))
+    except (OSError, ValueError) as error:
+        raise DatasetError(f"{path}: unreadable mask ({error})") from None
+    return (pixels >= 128).astype(np.float32)
+
+
+class SubjectSplit(Sequence[Frame]):
+    """The frames of one split, in the order splits.json lists them; loaded on access."""
+
+    def __init__(self, subject: Subject, name: str, indices: list[int]) -> None:
+        self.subject = subject
+        self.name = name
+        self.indices = list(indices)
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def __getitem__(self, position: int) -> Frame:  # type: ignore[override]
+        return self.subject[self.indices[position]]
+
+    def __iter__(self) -> Iterator[Frame]:
+        for index in self.indices:
+            yield self.subject[index]
+
+
+@dataclass
+class Subject:
+    """A subject folder opened for reading; images are read only when a frame is requested.
+
+    Attributes:
+        directory: the folder.
+        arrays: cameras, poses, shape and splits (small, in memory).
+        meta: the parsed meta.json.
+    """
+
+    directory: Path
+    arrays: SubjectArrays
+    meta: dict = field(default_factory=dict)
+
+    @classmethod
+    def open(cls, directory: str | Path) -> Subject:
+        """Open a subject folder; raises :class:`DatasetError` naming the first structural problem."""
+        directory = Path(directory)
+        if not directory.is_dir():
+            raise DatasetError(f"{directory}: not a folder")
+        meta = _read_json(directory / "meta.json")
+        if not isinstance(meta, dict) or meta.get("format") != SUBJECT_FORMAT:
+            found = meta.get("format") if isinstance(meta, dict) else None
+            raise DatasetError(f"{directory / 'meta.json'}: not a {SUBJECT_FORMAT} (format is {found!r})")
+        return cls(directory, _read_arrays(directory), meta)
+
+    def __len__(self) -> int:
+        return len(self.arrays)
+
+    @property
+    def split_names(self) -> list[str]:
+        return list(self.arrays.splits)
+
+    def split(self, name: str) -> SubjectSplit:
+        """The frames of split ``name`` ("train", "test", ...)."""
+        if name not in self.arrays.splits:
+            raise DatasetError(f"{self.directory}: no split '{name}' (has {', '.join(self.arrays.splits) or 'none'})")
+        return SubjectSplit(self, name, self.arrays.splits[name])
+
+    def image_path(self, index: int) -> Path:
+        return self.directory / "images" / image_name(index)
+
+    def mask_path(self, index: int) -> Path:
+        return self.directory / "masks" / image_name(index)
+
+    def __getitem__(self, index: int) -> Frame:
+        if not 0 <= index < len(self):
+            raise IndexError(f"image {index} out of range 0..{len(self) - 1}")
+        a = self.arrays
+        return Frame(
+            index=index,
+            image=read_rgb(self.image_path(index)),
+            mask=read_mask(self.mask_path(index)),
+            K=a.K[index],
+            world_to_camera=a.world_to_camera[index],
+            rotations=a.rotations[index],
+            translation=a.translation[index],
+            frame_index=int(a.frame_index[index]) if a.frame_index is not None else index,
+            view_index=int(a.view_index[index]) if a.view_index is not None else 0,
+            rotations_true=a.rotations_true[index] if a.rotations_true is not None else None,
+            translation_true=a.translation_true[index] if a.translation_true is not None else None,
+        )
+
+    def __iter__(self) -> Iterator[Frame]:
+        for index in range(len(self)):
+            yield self[index]
+
+
+class Dataset(Sequence[Subject]):
+    """A folder of subjects (the prior's training data); subjects are opened on access."""
+
+    def __init__(self, directory: str | Path) -> None:
+        self.directory = Path(directory)
+        meta = _read_json(self.directory / "meta.json")
+        if not isinstance(meta, dict) or meta.get("format") != DATASET_FORMAT:
+            raise DatasetError(f"{self.directory / 'meta.json'}: not a {DATASET_FORMAT}")
+        subjects = meta.get("subjects")
+        if not isinstance(subjects, list) or not all(isinstance(s, str) for s in subjects):
+            raise DatasetError(f"{self.directory / 'meta.json'}: 'subjects' must list the subject folders")
+        self.meta = meta
+        self.names: list[str] = subjects
+
+    @classmethod
+    def open(cls, directory: str | Path) -> Dataset:
+        return cls(directory)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def __getitem__(self, index: int) -> Subject:  # type: ignore[override]
+        return Subject.open(self.directory / self.names[index])
+
+
+# ---------------------------------------------------------------------------- checker
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One defect of a subject folder: the file it is in and what is wrong."""
+
+    path: str
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.path}: {self.message}"
+
+
+def _load_npz_for_check(path: Path, required: tuple[str, ...], problems: list[Problem]) -> dict | None:
+    """The archive's arrays, or None after recording why it cannot be used."""
+    if not path.is_file():
+        problems.append(Problem(path.name, "missing"))
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {key: data[key] for key in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
+        problems.append(Problem(path.name, f"unreadable .npz archive ({error})"))
+        return None
+    missing = [key for key in required if key not in arrays]
+    if missing:
+        problems.append(Problem(path.name, f"missing {', '.join(missing)}"))
+        return None
+    return arrays
+
+
+def _indices(mask: np.ndarray) -> str:
+    """Compact list of the True positions of a (n,) bool array, for messages."""
+    where = np.flatnonzero(mask)
+    shown = ", ".join(str(i) for i in where[:8])
+    return shown + (f" and {len(where) - 8} more" if len(where) > 8 else "")
+
+
+def _check_cameras(cameras: dict, poses: dict | None, problems: list[Problem]) -> None:
+    K = cameras["K"].astype(np.float64)
+    E = cameras["world_to_camera"].astype(np.float64)
+    for name, array in (("K", K), ("world_to_camera", E)):
+        bad = ~np.isfinite(array).reshape(len(array), -1).all(1)
+        if bad.any():
+            problems.append(Problem("cameras.npz", f"{name} is not finite for image(s) {_indices(bad)}"))
+    finite = np.isfinite(K).reshape(len(K), -1).all(1) & np.isfinite(E).reshape(len(E), -1).all(1)
+    bad_focal = finite & ~((K[:, 0, 0] > 0) & (K[:, 1, 1] > 0))
+    if bad_focal.any():
+        problems.append(Problem("cameras.npz", f"K has a non-positive focal length for image(s) {_indices(bad_focal)}"))
+    rotation = E[:, :3, :3]
+    gram = np.einsum("nji,njk->nik", rotation, rotation) - np.eye(3)
+    not_rigid = finite & (
+        (np.abs(gram).reshape(len(E), -1).max(1) > ROTATION_TOLERANCE)
+        | (np.abs(E[:, 3] - np.array([0.0, 0.0, 0.0, 1.0])).max(1) > ROTATION_TOLERANCE)
+    )
+    if not_rigid.any():
+        problems.append(Problem("cameras.npz", f"world_to_camera is not a rigid transform for image(s) {_indices(not_rigid)}"))
+    if poses is None or poses["translation"].shape != (len(E), 3):
+        return
+    # The subject's centre (its root translation) must lie in front of each camera and
+    # project near the image.
+    centre = poses["translation"].astype(np.float64)
+    ok = finite & ~not_rigid & np.isfinite(centre).all(1)
+    cam = np.einsum("nij,nj->ni", rotation, centre) + E[:, :3, 3]
+    behind = ok & (cam[:, 2] <= 0)
+    for i in np.flatnonzero(behind):
+        problems.append(
+            Problem(
+                "cameras.npz",
+                f"camera of image {i} looks away from the subject (subject centre at depth {cam[i, 2]:.2f} m)",
+            )
+        )
+    front = ok & ~behind
+    z = np.where(front, cam[:, 2], 1.0)
+    u = K[:, 0, 0] * cam[:, 0] / z + K[:, 0, 2]
+    v = K[:, 1, 1] * cam[:, 1] / z + K[:, 1, 2]
+    width, height = cameras["width"].astype(np.float64), cameras["height"].astype(np.float64)
+    outside = front & (
+        (u < -FRAME_MARGIN * width)
+        | (u > (1 + FRAME_MARGIN) * width)
+        | (v < -FRAME_MARGIN * height)
+        | (v > (1 + FRAME_MARGIN) * height)
+    )
+    for i in np.flatnonzero(outside):
+        problems.append(Problem("cameras.npz", f"subject centre projects far outside image {i} (at u={u[i]:.0f}, v={v[i]:.0f})"))
+
+
+def _check_png(path: Path, label: str, mode: str, size: tuple[int, int], problems: list[Problem], decode: bool) -> None:
+    """Header checks (size, mode) of one PNG; masks are decoded to test they are binary."""
+    if not path.is_file():
+        problems.append(Problem(label, "missing"))
+        return
+    try:
+        with Image.open(path) as image:
+            if image.format != "PNG":
+                problems.append(Problem(label, f"not a PNG ({image.format})"))
+                return
+            if image.size != size:
+                problems.append(Problem(label, f"size {image.size[0]}x{image.size[1]}, cameras.npz says {size[0]}x{size[1]}"))
+            if image.mode != mode:
+                problems.append(Problem(label, f"mode {image.mode}, expected {mode}"))
+            if decode and image.mode in ("L", "1", "P", "LA", "RGB", "RGBA"):
+                values = np.unique(np.asarray(image.convert("L")))
+                if not np.isin(values, (0, 255)).all():
+                    problems.append(Problem(label, f"mask not binary ({len(values)} distinct values; expected only 0 and 255)"))
+    except (OSError, ValueError) as error:
+        problems.append(Problem(label, f"unreadable PNG ({error})"))
+
+
+def check_subject(directory: str | Path) -> list[Problem]:
+    """Every problem found in a subject folder (empty when it is valid).
+
+    Reads the small files whole, then streams through the images (PNG headers only) and
+    the masks (decoded one at a time to test they are binary).
+    """
+    directory = Path(directory)
+    problems: list[Problem] = []
+    meta_path = directory / "meta.json"
+    if not meta_path.is_file():
+        problems.append(Problem("meta.json", "missing"))
+    else:
+        try:
+            meta = json.loads(meta_path.read_text(encoding="utf-8"))
+            if not isinstance(meta, dict) or meta.get("format") != SUBJECT_FORMAT:
+                problems.append(Problem("meta.json", f'"format" must be "{SUBJECT_FORMAT}"'))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+            problems.append(Problem("meta.json", f"unreadable JSON ({error})"))
+    cameras = _load_npz_for_check(directory / "cameras.npz", CAMERA_KEYS, problems)
+    poses = _load_npz_for_check(directory / "poses.npz", POSE_KEYS, problems)
+    if cameras is None:
+        return problems
+    n = len(cameras["K"])
+    shapes_ok = True
+    for key, shape in (("K", (n, 3, 3)), ("world_to_camera", (n, 4, 4)), ("height", (n,)), ("width", (n,))):
+        if cameras[key].shape != shape:
+            problems.append(Problem("cameras.npz", f"'{key}' has shape {cameras[key].shape}, expected {shape}"))
+            shapes_ok = False
+    if poses is not None:
+        bones = np.atleast_1d(poses["bone_names"]).shape[0]
+        expected = {"rotations": (n, bones, 3), "translation": (n, 3)}
+        for key in ("rotations_true", "translation_true"):
+            if key in poses:
+                expected[key] = expected[key.replace("_true", "")]
+        for key, shape in expected.items():
+            if poses[key].shape != shape:
+                problems.append(Problem("poses.npz", f"'{key}' has shape {poses[key].shape}, expected {shape}"))
+                continue
+            bad = ~np.isfinite(poses[key].astype(np.float64)).reshape(n, -1).all(1)
+            if bad.any():
+                problems.append(Problem("poses.npz", f"'{key}' is not finite for image(s) {_indices(bad)}"))
+        if not np.isfinite(np.asarray(poses["shape"], dtype=np.float64)).all():
+            problems.append(Problem("poses.npz", "'shape' is not finite"))
+        if poses["translation"].shape != (n, 3):
+            poses = None
+    if shapes_ok:
+        _check_cameras(cameras, poses, problems)
+
+    splits_path = directory / "splits.json"
+    try:
+        splits = json.loads(splits_path.read_text(encoding="utf-8"))
+        if not isinstance(splits, dict) or "train" not in splits:
+            problems.append(Problem("splits.json", 'expected {"train": [indices], "test": [indices], ...}'))
+        else:
+            for name, indices in splits.items():
+                if not isinstance(indices, list) or not all(isinstance(i, int) and 0 <= i < n for i in indices):
+                    problems.append(Problem("splits.json", f"split '{name}' must list image indices in 0..{n - 1}"))
+            if isinstance(splits.get("test"), list) and isinstance(splits["train"], list):
+                shared = set(splits["train"]) & set(splits["test"])
+                if shared:
+                    problems.append(Problem("splits.json", f"{len(shared)} image(s) are in both train and test"))
+    except FileNotFoundError:
+        problems.append(Problem("splits.json", "missing"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        problems.append(Problem("splits.json", f"unreadable JSON ({error})"))
+
+    if not shapes_ok:
+        return problems
+    for folder in ("images", "masks"):
+        if not (directory / folder).is_dir():
+            problems.append(Problem(folder, "missing folder"))
+            continue
+        expected_names = {image_name(i) for i in range(n)}
+        stray = sorted(p.name for p in (directory / folder).glob("*.png") if p.name not in expected_names)
+        for name in stray:
+            problems.append(Problem(f"{folder}/{name}", f"not one of the {n} images cameras.npz describes"))
+        mode, decode = ("RGB", False) if folder == "images" else ("L", True)
+        for i in range(n):
+            size = (int(cameras["width"][i]), int(cameras["height"][i]))
+            name = image_name(i)
+            _check_png(directory / folder / name, f"{folder}/{name}", mode, size, problems, decode)
+    return problems
+
+
+def check(path: str | Path) -> list[Problem]:
+    """Problems of a subject folder or of every subject of a dataset folder.
+
+    Paths in the problems are relative to ``path`` (prefixed with the subject folder for
+    datasets).
+    """
+    path = Path(path)
+    if not path.is_dir():
+        return [Problem(str(path), "not a folder")]
+    meta_path = path / "meta.json"
+    meta = None
+    if meta_path.is_file():
+        try:
+            meta = json.loads(meta_path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+            return [Problem("meta.json", f"unreadable JSON ({error})")]
+    if isinstance(meta, dict) and meta.get("format") == DATASET_FORMAT:
+        subjects = meta.get("subjects")
+        if not isinstance(subjects, list) or not all(isinstance(s, str) for s in subjects):
+            return [Problem("meta.json", "'subjects' must list the subject folders")]
+        problems = []
+        for name in subjects:
+            if not (path / name).is_dir():
+                problems.append(Problem(name, "subject folder missing"))
+                continue
+            problems += [Problem(f"{name}/{p.path}", p.message) for p in check_subject(path / name)]
+        return problems
+    if meta is None and not (path / "cameras.npz").is_file():
+        return [Problem(str(path), "neither a subject (cameras.npz, poses.npz, ...) nor a dataset (meta.json listing subjects)")]
+    return check_subject(path)
+
+
+def count_images(path: str | Path) -> tuple[int, int]:
+    """(subjects, images) in a valid subject or dataset folder."""
+    path = Path(path)
+    meta = json.loads((path / "meta.json").read_text(encoding="utf-8"))
+    folders = [path / name for name in meta["subjects"]] if meta.get("format") == DATASET_FORMAT else [path]
+    total = 0
+    for folder in folders:
+        with np.load(folder / "cameras.npz", allow_pickle=False) as data:
+            total += len(data["K"])
+    return len(folders), total

@@ -1,0 +1,180 @@
+"""The native splatter: the C++ kernel ``_rasterize.cpp``, built on first use, and its autograd Function.
+
+Readable twin: :mod:`pghm.splat._torch_impl`. The kernel is compiled once per source,
+compiler flags, torch version and CPU into ``cache_dir() / "ext"`` (``$PGHM_CACHE_DIR``);
+``python -m pghm.splat.native`` builds it ahead of time (``scripts/setup.sh`` does), so the
+first render is not slow.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import platform
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import torch
+from torch import Tensor
+
+from pghm.errors import PghmError
+from pghm.splat._projection import ALPHA_MAX, Footprints
+from pghm.splat._settings import SplatSettings
+from pghm.uv.atlas import cache_dir
+
+SOURCE = Path(__file__).with_name("_rasterize.cpp")
+
+TILE_SIZE = 32
+"""Tile side in pixels: the unit of binning and of parallel work (docs/splat.md: 16, 32, 64 measured)."""
+
+CXX_FLAGS = ("-O3", "-fno-trapping-math", "-fopenmp", "-march=native", "-mprefer-vector-width=256")
+"""-fno-trapping-math lets the per-block loops vectorise (no result changes: pghm never reads FP
+exception flags); a block of 8 floats is one 256-bit vector; -fopenmp makes at::parallel_for
+use torch's OpenMP pool (the extension reuses torch's libgomp) and honours ``omp simd``."""
+
+GRAD_COLUMNS = {"means2d": slice(0, 2), "conics": slice(2, 5), "opacities": 5, "colors": slice(6, 9), "depths": 9}
+"""Columns of the kernel's (B, N, 10) per-Gaussian gradient (enum GradColumn in the .cpp)."""
+
+
+def _cpu_signature() -> str:
+    """The CPU's feature flags: -march=native code must not be reused on a different CPU."""
+    try:
+        with open("/proc/cpuinfo") as cpuinfo:
+            return next((line for line in cpuinfo if line.startswith("flags")), platform.processor())
+    except OSError:
+        return platform.processor()
+
+
+def build_directory() -> Path:
+    """Where the kernel is compiled: one directory per source, flags, torch version and CPU."""
+    digest = hashlib.sha256()
+    for part in (" ".join(CXX_FLAGS), torch.__version__, _cpu_signature()):
+        digest.update(part.encode())
+    digest.update(SOURCE.read_bytes())
+    return cache_dir() / "ext" / f"splat-{digest.hexdigest()[:16]}"
+
+
+@functools.cache
+def _build() -> ModuleType | Exception:
+    """The compiled module, or the exception that stopped the build (remembered, not retried)."""
+    from torch.utils.cpp_extension import load
+
+    directory = build_directory()
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        return load(
+            name=f"pghm_{directory.name.replace('-', '_')}",
+            sources=[str(SOURCE)],
+            build_directory=str(directory),
+            extra_cflags=list(CXX_FLAGS),
+            extra_ldflags=["-fopenmp"],
+        )
+    except Exception as error:  # any build failure (no compiler, ninja, headers) means "use the torch path"
+        return error
+
+
+def is_available() -> bool:
+    """True when the kernel is (or can be) built; compiles it on first call."""
+    return not isinstance(_build(), Exception)
+
+
+def load_extension() -> ModuleType:
+    """The compiled kernel; raises :class:`PghmError` saying why when it cannot be built."""
+    module = _build()
+    if isinstance(module, Exception):
+        first_line = str(module).strip().splitlines()[0] if str(module).strip() else type(module).__name__
+        raise PghmError(f"the native splat kernel could not be built in {build_directory()}: {first_line}")
+    return module
+
+
+class _Rasterize(torch.autograd.Function):
+    """Spec steps 5-6 by the native kernel; inputs as :func:`pghm.splat._torch_impl.rasterize`."""
+
+    @staticmethod
+    def forward(
+        ctx,
+        means2d: Tensor,
+        conics: Tensor,
+        colors: Tensor,
+        opacities: Tensor,
+        depths: Tensor,
+        background: Tensor,
+        footprints: Footprints,
+        width: int,
+        height: int,
+        settings: SplatSettings,
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        geometry = (width, height, TILE_SIZE, settings.alpha_cutoff, ALPHA_MAX, settings.transmittance_stop)
+        gaussians = (means2d, conics, colors, opacities, depths, background, footprints.bbox, footprints.radius2)
+        rgb, alpha, depth, tile_offsets, tile_ids = load_extension().forward(
+            list(gaussians), footprints.order, footprints.counts, *geometry
+        )
+        ctx.save_for_backward(*gaussians, tile_offsets, tile_ids)
+        ctx.geometry = geometry
+        return rgb, alpha, depth
+
+    @staticmethod
+    def backward(ctx, v_rgb: Tensor, v_alpha: Tensor, v_depth: Tensor):
+        *gaussians, tile_offsets, tile_ids = ctx.saved_tensors
+        cotangents = (v_rgb.contiguous(), v_alpha.contiguous(), v_depth.contiguous())
+        grads = load_extension().backward(gaussians, tile_offsets, tile_ids, *cotangents, *ctx.geometry)
+        dtype = gaussians[2].dtype
+        v_means2d = grads[..., GRAD_COLUMNS["means2d"]]
+        v_conics = grads[..., GRAD_COLUMNS["conics"]]
+        v_colors = grads[..., GRAD_COLUMNS["colors"]].to(dtype)
+        v_opacities = grads[..., GRAD_COLUMNS["opacities"]].to(dtype)
+        v_depths = grads[..., GRAD_COLUMNS["depths"]].to(dtype)
+        return (
+            v_means2d,
+            v_conics,
+            v_colors,
+            v_opacities,
+            v_depths,
+            None,  # background
+            None,  # footprints
+            None,  # width
+            None,  # height
+            None,  # settings
+        )
+
+
+def rasterize(
+    means2d: Tensor,
+    conics: Tensor,
+    colors: Tensor,
+    opacities: Tensor,
+    depths: Tensor,
+    background: Tensor,
+    footprints: Footprints,
+    width: int,
+    height: int,
+    settings: SplatSettings,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """The native counterpart of :func:`pghm.splat._torch_impl.rasterize` (same arguments and results)."""
+    return _Rasterize.apply(
+        means2d.contiguous(),
+        conics.contiguous(),
+        colors.contiguous(),
+        opacities.contiguous(),
+        depths.contiguous(),
+        background.contiguous(),
+        footprints,
+        width,
+        height,
+        settings,
+    )
+
+
+def main() -> int:
+    """Build the kernel now (``python -m pghm.splat.native``) and say where it is."""
+    module = _build()
+    if isinstance(module, Exception):
+        print(f"pghm.splat.native: build failed, renders will use the torch path: {module}", file=sys.stderr)
+        return 1
+    print(f"pghm.splat.native: kernel ready in {build_directory()}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

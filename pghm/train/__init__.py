@@ -1,0 +1,1 @@
+"""Training: the paper's losses, prior training, two-stage personalisation, evaluation."""

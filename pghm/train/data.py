@@ -1,0 +1,171 @@
+"""Training data: subjects as identities, deterministic batches, per-frame pose corrections.
+
+A step's global batch is drawn from (seed, step) alone, so a resumed run sees exactly the
+batches an uninterrupted one would, and a run split over W processes sees the same global
+batch as one process. The global batch is ``shards`` groups of ``images_per_shard`` images;
+each group comes from one identity (one identity-map evaluation serves the whole group).
+A process computes the groups assigned to it and averages over them; DDP's gradient mean
+over processes then equals the single-process mean over all groups.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from pghm.data.subject import Dataset, Subject
+from pghm.errors import DatasetError, PghmError
+from pghm.splat import Camera
+
+log = logging.getLogger(__name__)
+
+STEP_SEED_STRIDE = 1_000_003
+"""Mixes the step into the sampling seed: generator seed = seed * stride + step."""
+
+
+@dataclass
+class Sample:
+    """One training image of one identity.
+
+    Attributes:
+        identity: index of the identity (subject) in the data set.
+        image_index: index of the image within its subject.
+        frame_key: global index of the pose (the frame, shared by the views of one instant).
+        image: (3, H, W) float32 target, white background.
+        camera: the image's camera.
+        rotations: (J, 3) pose as stored (an estimate, possibly noisy).
+        translation: (3,) root translation as stored.
+    """
+
+    identity: int
+    image_index: int
+    frame_key: int
+    image: Tensor
+    camera: Camera
+    rotations: Tensor
+    translation: Tensor
+
+
+class TrainingData:
+    """The identities (subject folders) of a data set and their training images.
+
+    Args:
+        root: a subject folder, or a data set folder of subject folders (one identity each).
+        split: which images to train on ("train").
+        max_identities: use only the first this-many subjects (None: all).
+    """
+
+    def __init__(self, root: str | Path, split: str = "train", max_identities: int | None = None) -> None:
+        root = Path(root)
+        if not root.is_dir():
+            raise DatasetError(f"{root}: data folder not found")
+        if (root / "cameras.npz").is_file():
+            self.subjects = [Subject.open(root)]
+        else:
+            self.subjects = list(Dataset.open(root))
+        if max_identities is not None:
+            if max_identities < 1:
+                raise DatasetError(f"max_identities must be at least 1, got {max_identities}")
+            self.subjects = self.subjects[:max_identities]
+        if not self.subjects:
+            raise DatasetError(f"{root}: the data set lists no subjects")
+        body_names = {subject.arrays.body for subject in self.subjects}
+        if len(body_names) != 1:
+            raise DatasetError(f"{root}: subjects use different body models {sorted(body_names)}")
+        self.body_name = body_names.pop()
+        self.images = [np.asarray(subject.split(split).indices, dtype=np.int64) for subject in self.subjects]
+        for subject, images in zip(self.subjects, self.images):
+            if len(images) == 0:
+                raise DatasetError(f"{subject.directory}: no '{split}' images")
+        # One pose-correction slot per (identity, frame): the views of an instant share it.
+        self.frame_offsets = []
+        offset = 0
+        for subject in self.subjects:
+            self.frame_offsets.append(offset)
+            frames = subject.arrays.frame_index
+            offset += int(frames.max()) + 1 if frames is not None else len(subject)
+        self.num_frames = offset
+        self.bad: set[tuple[int, int]] = set()
+
+    @property
+    def num_identities(self) -> int:
+        return len(self.subjects)
+
+    def shape(self, identity: int) -> Tensor:
+        return torch.as_tensor(self.subjects[identity].arrays.shape, dtype=torch.float32)
+
+    def load(self, identity: int, image_index: int) -> Sample:
+        """Read one image and its annotations."""
+        subject = self.subjects[identity]
+        frame = subject[image_index]
+        return Sample(
+            identity=identity,
+            image_index=image_index,
+            frame_key=self.frame_offsets[identity] + int(frame.frame_index),
+            image=torch.from_numpy(np.ascontiguousarray(frame.image)).permute(2, 0, 1).float(),
+            camera=Camera.from_matrices(
+                torch.as_tensor(frame.K, dtype=torch.float32),
+                torch.as_tensor(frame.world_to_camera, dtype=torch.float32),
+                width=int(frame.image.shape[1]),
+                height=int(frame.image.shape[0]),
+            ),
+            rotations=torch.as_tensor(frame.rotations, dtype=torch.float32),
+            translation=torch.as_tensor(frame.translation, dtype=torch.float32),
+        )
+
+    def plan(
+        self, seed: int, step: int, shards: int, images_per_shard: int, same_instant: bool = True
+    ) -> list[tuple[int, list[int]]]:
+        """The global batch of ``step``: ``shards`` (identity, image indices) groups.
+
+        With ``same_instant``, a group of a multi-view subject is views of one time step
+        (they share the skinning and the pose branch); otherwise images are drawn freely.
+        """
+        gen = np.random.default_rng(seed * STEP_SEED_STRIDE + step)
+        groups = []
+        for _ in range(shards):
+            identity = int(gen.integers(self.num_identities))
+            pool = self.images[identity]
+            frames = self.subjects[identity].arrays.frame_index
+            if same_instant and frames is not None and len(np.unique(frames[pool])) < len(pool):
+                instant = gen.choice(np.unique(frames[pool]))
+                pool = pool[frames[pool] == instant]
+            replace = len(pool) < images_per_shard
+            chosen = gen.choice(pool, size=images_per_shard, replace=replace)
+            groups.append((identity, [int(i) for i in chosen]))
+        return groups
+
+    def load_group(self, identity: int, image_indices: list[int]) -> list[Sample]:
+        """The readable samples of a group; a corrupted image is reported once and skipped."""
+        samples = []
+        for index in image_indices:
+            if (identity, index) in self.bad:
+                continue
+            try:
+                samples.append(self.load(identity, index))
+            except (DatasetError, PghmError, OSError, ValueError) as error:
+                self.bad.add((identity, index))
+                log.warning("skipping image %d of %s: %s", index, self.subjects[identity].directory, error)
+        return samples
+
+
+class PoseCorrections(nn.Module):
+    """Learned per-frame corrections of the stored poses (the paper refines noisy poses).
+
+    corrected rotations = stored + delta_rotations[frame] (axis-angle, small deltas),
+    corrected translation = stored + delta_translation[frame]; both start at zero.
+    """
+
+    def __init__(self, num_frames: int, num_bones: int) -> None:
+        super().__init__()
+        self.rotations = nn.Parameter(torch.zeros(num_frames, num_bones, 3))
+        self.translation = nn.Parameter(torch.zeros(num_frames, 3))
+
+    def forward(self, frame_keys: Tensor, rotations: Tensor, translation: Tensor) -> tuple[Tensor, Tensor]:
+        """Corrected (B, J, 3) rotations and (B, 3) translations for frames (B,)."""
+        return rotations + self.rotations[frame_keys], translation + self.translation[frame_keys]

@@ -1,0 +1,147 @@
+"""``pghm fit``: personalise a prior to one subject from a monocular video (paper section
+"Personalization with Parametric Avatar Prior").
+
+Stage 1, identity-map adaptation: the decoded identity map is replaced by a new learnable
+full-resolution latent (C x L x L, bypassing the Feature Decoder), initialised with the
+decoded mean of the bank's latents, and optimised alone; the network is frozen.
+Stage 2, joint tuning: the latent and the U-Net (E_u, E_p, E_v and the decoders) are
+optimised together, with per-frame pose corrections when ``refine_poses``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from pghm.errors import PghmError
+from pghm.io.avatar import Avatar, load_avatar, save_avatar
+from pghm.model import PGHM, ModelConfig
+from pghm.train.data import PoseCorrections, TrainingData
+from pghm.train.loop import AvatarObjective, LoopConfig, LoopState, load_checkpoint, restore, run_stage
+from pghm.train.prior import GeometryCache, checkpoint_path, lpips_for
+
+log = logging.getLogger(__name__)
+
+NETWORK_PARTS = ("unet_encoder", "static_decoder", "pose_encoder", "pose_decoder", "view_encoder", "view_decoder", "single_decoder")
+"""What stage 2 tunes: the U-Net and its pose/view encoders (the bank and Feature Decoder are bypassed)."""
+
+
+@dataclass
+class FitConfig:
+    """Two-stage personalisation; defaults sized for a 2-core CPU (paper: 1k + 1k steps)."""
+
+    stage1: LoopConfig = field(default_factory=lambda: LoopConfig(steps=500, images_per_shard=2))
+    stage2: LoopConfig = field(default_factory=lambda: LoopConfig(steps=500, images_per_shard=2))
+    latent_lr: float = 1e-2
+    """Adam learning rate of the personal latent (both stages)."""
+    network_lr: float = 2e-4
+    """Adam learning rate of the U-Net in stage 2."""
+    pose_lr: float = 1e-3
+    """Adam learning rate of the per-frame pose corrections in stage 2."""
+    refine_poses: bool = True
+    lpips: bool = True
+    body_model_path: str | None = None
+
+
+def initial_latent(model: PGHM) -> torch.Tensor:
+    """(1, C, L, L): the decoded mean of the bank's latents (a fresh latent for an empty bank)."""
+    with torch.no_grad():
+        if model.num_identities == 0:
+            size = model.config.uv_resolution
+            return torch.zeros(1, model.config.latent_channels, size, size)
+        return model.decode_latent(model.identity_bank.mean(0, keepdim=True))
+
+
+def network_parameters(model: PGHM) -> list[nn.Parameter]:
+    return [p for part in NETWORK_PARTS if hasattr(model, part) for p in getattr(model, part).parameters()]
+
+
+def fit(
+    subject_dir: str | Path,
+    prior: str | Path | Avatar | ModelConfig,
+    out: str | Path,
+    config: FitConfig = FitConfig(),
+    resume: bool = False,
+) -> Avatar:
+    """Personalise ``prior`` to the subject in ``subject_dir`` and save the avatar to ``out``.
+
+    Args:
+        prior: a prior file or loaded prior; or a :class:`ModelConfig` to train the same
+            model from scratch (random network, latent from zero) for comparison.
+    """
+    out = Path(out)
+    data = TrainingData(subject_dir)
+    if data.num_identities != 1:
+        raise PghmError(f"{subject_dir}: fit takes one subject folder, found {data.num_identities}")
+    if isinstance(prior, ModelConfig):
+        torch.manual_seed(config.stage1.seed)
+        model, prior_source = PGHM(prior, num_identities=0), "none (from scratch)"
+    else:
+        prior_avatar = prior if isinstance(prior, Avatar) else load_avatar(prior)
+        if data.body_name != prior_avatar.body_name:
+            raise PghmError(f"the subject uses the '{data.body_name}' body, the prior '{prior_avatar.body_name}'")
+        model = prior_avatar.model
+        prior_source = str(Path(prior).resolve()) if not isinstance(prior, Avatar) else "(in memory)"
+    model.train()
+    for p in model.parameters():
+        p.requires_grad_(False)
+    geometries = GeometryCache(data, model.config, config.body_model_path)
+    latent = nn.Parameter(initial_latent(model))
+    corrections = PoseCorrections(data.num_frames, geometries.body.num_bones) if config.refine_poses else None
+    lpips, lpips_line = lpips_for(config.lpips)
+    objective = AvatarObjective(model, latent, corrections, config.stage1.loss, lpips)
+    ckpt = checkpoint_path(out)
+    if resume and not ckpt.is_file():
+        raise PghmError(f"--resume: no checkpoint {ckpt} to continue from")
+    payload = load_checkpoint(ckpt) if resume else None
+    start_stage = payload["extra"]["stage"] if payload else 1
+
+    stage1_opt = torch.optim.Adam([latent], lr=config.latent_lr)
+    state1 = LoopState(step=config.stage1.steps)
+    if start_stage == 1:
+        state1 = restore(payload, objective, stage1_opt) if payload else LoopState()
+        state1 = run_stage(objective, [latent], stage1_opt, data, geometries, config.stage1, ckpt, state1, {"stage": 1}, "fit 1/2")
+
+    network = network_parameters(model)
+    for p in network:
+        p.requires_grad_(True)
+    groups = [{"params": [latent], "lr": config.latent_lr}, {"params": network, "lr": config.network_lr}]
+    if corrections is not None:
+        groups.append({"params": list(corrections.parameters()), "lr": config.pose_lr})
+    stage2_opt = torch.optim.Adam(groups)
+    state2 = LoopState()
+    if payload and start_stage == 2:
+        state2 = restore(payload, objective, stage2_opt)
+    objective.weights = config.stage2.loss
+    trainable = [p for g in groups for p in g["params"]]
+    state2 = run_stage(objective, trainable, stage2_opt, data, geometries, config.stage2, ckpt, state2, {"stage": 2}, "fit 2/2")
+
+    avatar = Avatar(
+        model=model.eval(),
+        kind="avatar",
+        body_name=data.body_name,
+        shape=data.shape(0),
+        latent=latent.detach().clone(),
+        metadata={
+            "command": "fit",
+            "data": str(Path(subject_dir).resolve()),
+            "prior": prior_source,
+            "prior_identities": model.num_identities,
+            "training_images": int(len(data.images[0])),
+            "steps": {"stage1": state1.step, "stage2": state2.step},
+            "seconds": round(state1.seconds + state2.seconds, 1),
+            "skipped_steps": state1.skipped_steps + state2.skipped_steps,
+            "lpips": lpips_line,
+            "final": state2.history[-1] if state2.history else {},
+            "config": asdict(config),
+        },
+    )
+    for p in model.parameters():
+        p.requires_grad_(True)
+    save_avatar(out, avatar)
+    return avatar
+

@@ -1,0 +1,290 @@
+"""The optimisation loop shared by prior training and personalisation.
+
+One step: plan the global batch from (seed, step), evaluate this process's groups (model,
+both renders, the paper's loss), average, backward (DDP averages across processes),
+guard against non-finite values, clip, update. Every ``checkpoint_every`` steps, and on
+Ctrl-C, the full state (parameters, optimizer, step, learning-rate scale, skipped frames)
+is saved atomically; ``resume`` continues from it exactly.
+
+Numerical guard: a step whose loss or gradients are not finite is skipped and the
+learning rate halved (logged); a step that would leave non-finite parameters is undone
+from a copy taken before it and likewise halves the rate. No NaN is ever left behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+from torch import Tensor, nn
+from tqdm import tqdm
+
+from pghm.body.pose import BodyPose
+from pghm.errors import PghmError
+from pghm.io.atomic import atomic_write_bytes
+from pghm.model.geometry import SubjectGeometry
+from pghm.model.pghm import PGHM
+from pghm.splat import render
+from pghm.train import distributed
+from pghm.train.data import PoseCorrections, Sample, TrainingData
+from pghm.train.losses import LossWeights, objective, psnr
+
+log = logging.getLogger(__name__)
+
+BACKGROUND = (1.0, 1.0, 1.0)
+"""Training targets are composited on white, as the paper evaluates."""
+LR_BACKOFF = 0.5
+"""Learning-rate factor applied after a non-finite step."""
+CHECKPOINT_FORMAT = "pghm-checkpoint"
+
+
+@dataclass
+class LoopConfig:
+    """How long and on what one optimisation stage runs."""
+
+    steps: int = 1000
+    """Optimisation steps of this stage."""
+    shards: int = 1
+    """Identity groups per global batch; must be a multiple of the number of processes."""
+    images_per_shard: int = 4
+    """Images per group (views/frames of one identity)."""
+    seed: int = 0
+    """Seeds the batch plan; the same seed and step give the same batch."""
+    checkpoint_every: int = 100
+    """Steps between atomic checkpoints (0: only at the end and on Ctrl-C)."""
+    same_instant: bool = True
+    """Draw a multi-view group's images from one time step: its views share one pose
+    evaluation (skinning, E_p, D_pose), so a step costs one pose branch, not one per image."""
+    max_grad_norm: float = 1.0
+    """Gradient clipping threshold (global L2 norm)."""
+    loss: LossWeights = field(default_factory=LossWeights)
+
+
+class AvatarObjective(nn.Module):
+    """Model, optional personal latent, optional pose corrections, and the paper's loss.
+
+    Wrapped as a whole by DDP, so every trainable tensor's gradient is averaged across
+    processes in the same way.
+
+    Args:
+        model: the network.
+        latent: a personal full-resolution latent (1, C, L, L) that replaces the decoded
+            identity map (personalisation), or None to decode bank latents (prior).
+        corrections: per-frame pose corrections, or None.
+        lpips: the LPIPS network, or None to leave the term out.
+    """
+
+    def __init__(
+        self,
+        model: PGHM,
+        latent: nn.Parameter | None,
+        corrections: PoseCorrections | None,
+        weights: LossWeights,
+        lpips: nn.Module | None,
+    ) -> None:
+        super().__init__()
+        self.model = model
+        self.latent = latent
+        self.corrections = corrections
+        self.weights = weights
+        self.lpips = lpips
+
+    def identity_map(self, identity: int) -> Tensor:
+        return self.latent if self.latent is not None else self.model.decode_identity(identity)
+
+    def renders(self, samples: list[Sample], geometry: SubjectGeometry) -> tuple[Tensor, Tensor, Tensor]:
+        """Static and dynamic renders (B, 3, H, W) of one identity's samples, and the regulariser."""
+        # One pose per distinct frame; the views of a frame share it.
+        keys = [s.frame_key for s in samples]
+        unique = sorted(set(keys))
+        first = [keys.index(k) for k in unique]
+        rotations = torch.stack([samples[i].rotations for i in first])
+        translation = torch.stack([samples[i].translation for i in first])
+        if self.corrections is not None:
+            rotations, translation = self.corrections(torch.tensor(unique), rotations, translation)
+        pose_index = torch.tensor([unique.index(k) for k in keys])
+        centres = torch.stack([s.camera.centre.float() for s in samples])
+        out = self.model(
+            self.identity_map(samples[0].identity), geometry, BodyPose(rotations, translation), centres, pose_index
+        )
+        static, dynamic = [], []
+        for b, sample in enumerate(samples):
+            for gaussians, images in ((out.static, static), (out.dynamic, dynamic)):
+                image = render(
+                    gaussians.means[b], gaussians.scales[b], gaussians.colors[b], gaussians.opacities[b],
+                    sample.camera, background=BACKGROUND,
+                ).rgb
+                images.append(image.permute(2, 0, 1))
+        return torch.stack(static), torch.stack(dynamic), out.regularizer
+
+    def forward(self, samples: list[Sample], geometry: SubjectGeometry) -> tuple[Tensor, dict[str, float]]:
+        """The loss of one identity's samples and its terms."""
+        static, dynamic, regularizer = self.renders(samples, geometry)
+        target = torch.stack([s.image for s in samples])
+        loss, terms = objective(static, dynamic, target, regularizer, self.weights, self.lpips)
+        terms["psnr"] = float(psnr(dynamic.detach().clamp(0, 1), target).mean())
+        return loss, terms
+
+
+@dataclass
+class LoopState:
+    """What a checkpoint restores besides the parameters."""
+
+    step: int = 0
+    lr_scale: float = 1.0
+    skipped_steps: int = 0
+    bad_images: list = field(default_factory=list)
+    seconds: float = 0.0
+    history: list = field(default_factory=list)
+
+
+def save_checkpoint(path: Path, objective: AvatarObjective, optimizer: torch.optim.Optimizer, state: LoopState, extra: dict) -> None:
+    buffer = io.BytesIO()
+    torch.save(
+        {
+            "format": CHECKPOINT_FORMAT,
+            "objective": {k: v for k, v in objective.state_dict().items() if not k.startswith("lpips.")},
+            "optimizer": optimizer.state_dict(),
+            "state": {
+                "step": state.step,
+                "lr_scale": state.lr_scale,
+                "skipped_steps": state.skipped_steps,
+                "bad_images": [list(b) for b in state.bad_images],
+                "seconds": state.seconds,
+                "history": state.history,
+            },
+            "extra": extra,
+        },
+        buffer,
+    )
+    atomic_write_bytes(path, buffer.getvalue())
+
+
+def load_checkpoint(path: Path) -> dict:
+    """Read a checkpoint (weights_only: never runs code); PghmError if it is not one."""
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # noqa: BLE001 - torch.load raises many types on a damaged file
+        raise PghmError(f"{path}: unreadable checkpoint ({type(error).__name__}: {str(error).splitlines()[0]})") from None
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+        raise PghmError(f"{path}: not a pghm checkpoint")
+    return payload
+
+
+def restore(payload: dict, objective: AvatarObjective, optimizer: torch.optim.Optimizer) -> LoopState:
+    missing, unexpected = objective.load_state_dict(payload["objective"], strict=False)
+    missing = [k for k in missing if not k.startswith("lpips.")]
+    if missing or unexpected:
+        raise PghmError(f"checkpoint does not match this run (missing {missing[:3]}, unexpected {unexpected[:3]})")
+    optimizer.load_state_dict(payload["optimizer"])
+    raw = payload["state"]
+    return LoopState(
+        step=raw["step"],
+        lr_scale=raw["lr_scale"],
+        skipped_steps=raw["skipped_steps"],
+        bad_images=[tuple(b) for b in raw["bad_images"]],
+        seconds=raw["seconds"],
+        history=raw["history"],
+    )
+
+
+def _all_finite(tensors) -> bool:
+    return all(bool(torch.isfinite(t).all()) for t in tensors)
+
+
+def run_stage(
+    objective: AvatarObjective,
+    trainable: list[nn.Parameter],
+    optimizer: torch.optim.Optimizer,
+    data: TrainingData,
+    geometry_of: Callable[[int], SubjectGeometry],
+    config: LoopConfig,
+    checkpoint: Path,
+    state: LoopState,
+    extra: dict,
+    description: str,
+) -> LoopState:
+    """Run steps ``state.step`` .. ``config.steps`` - 1; returns the final state.
+
+    Raises KeyboardInterrupt after saving a checkpoint when interrupted.
+    """
+    world, rank = distributed.world_size(), distributed.rank()
+    if config.shards % world:
+        raise PghmError(f"--shards {config.shards} is not a multiple of the {world} processes")
+    module = distributed.wrap(objective)
+    base_lrs = [group["lr"] for group in optimizer.param_groups]
+    data.bad.update(state.bad_images)
+
+    def set_lr() -> None:
+        for group, lr in zip(optimizer.param_groups, base_lrs):
+            group["lr"] = lr * state.lr_scale
+
+    set_lr()
+    progress = tqdm(
+        total=config.steps, initial=state.step, desc=description, disable=rank != 0, dynamic_ncols=True, leave=True
+    )
+    started = time.perf_counter() - state.seconds
+    try:
+        while state.step < config.steps:
+            plan = data.plan(config.seed, state.step, config.shards, config.images_per_shard, config.same_instant)
+            mine = plan[rank::world]
+            optimizer.zero_grad(set_to_none=False)
+            total, terms_sum, groups = 0.0, {}, 0
+            for position, (identity, images) in enumerate(mine):
+                samples = data.load_group(identity, images)
+                if not samples:
+                    continue
+                # Gradients of all but the last group accumulate locally; DDP averages once.
+                last = position == len(mine) - 1
+                with contextlib.nullcontext() if last else distributed.no_sync(module):
+                    loss, terms = module(samples, geometry_of(identity))
+                    (loss / len(mine)).backward()
+                total += loss.item()
+                groups += 1
+                for key, value in terms.items():
+                    terms_sum[key] = terms_sum.get(key, 0.0) + value
+            backup = [p.detach().clone() for p in trainable]
+            finite = math.isfinite(total) and _all_finite(p.grad for p in trainable if p.grad is not None)
+            if finite:
+                torch.nn.utils.clip_grad_norm_(trainable, config.max_grad_norm)
+                optimizer.step()
+                if not _all_finite(trainable):
+                    with torch.no_grad():
+                        for p, saved in zip(trainable, backup):
+                            p.copy_(saved)
+                    finite = False
+            if not finite:
+                state.skipped_steps += 1
+                state.lr_scale *= LR_BACKOFF
+                set_lr()
+                log.warning(
+                    "step %d: non-finite loss, gradient or update; step skipped, learning rate x%.2f (now scale %.3g)",
+                    state.step, LR_BACKOFF, state.lr_scale,
+                )
+            state.step += 1
+            state.seconds = time.perf_counter() - started
+            if groups:
+                mean = {k: v / groups for k, v in terms_sum.items()}
+                state.history.append({"step": state.step, **{k: round(v, 5) for k, v in mean.items()}})
+                progress.set_postfix(loss=f"{mean['loss']:.4f}", psnr=f"{mean['psnr']:.2f}")
+            progress.update(1)
+            if rank == 0 and config.checkpoint_every and state.step % config.checkpoint_every == 0:
+                state.bad_images = sorted(data.bad)
+                save_checkpoint(checkpoint, objective, optimizer, state, extra)
+    except KeyboardInterrupt:
+        if rank == 0:
+            state.bad_images = sorted(data.bad)
+            save_checkpoint(checkpoint, objective, optimizer, state, extra)
+            progress.write(f"interrupted at step {state.step}: checkpoint saved to {checkpoint}; continue with --resume")
+        raise
+    finally:
+        progress.close()
+    state.bad_images = sorted(data.bad)
+    return state

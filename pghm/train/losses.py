@@ -1,0 +1,77 @@
+"""The paper's training objective and the evaluation metrics, one implementation of each.
+
+    L = l1 [L1(I_s, I) + L1(I_d, I)] + l2 [(1 - SSIM)(I_s, I) + (1 - SSIM)(I_d, I)]
+      + l3 [LPIPS(I_s, I) + LPIPS(I_d, I)] + l4 L_reg
+
+with (l1, l2, l3, l4) = (0.8, 0.2, 0.2, 0.1). SSIM uses a Gaussian window of 11 taps,
+sigma 1.5, K1 = 0.01, K2 = 0.03 over the valid region (pytorch-msssim, which implements
+exactly Wang et al. 2004's definition); the same function is the evaluation metric.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from pytorch_msssim import ssim as _ssim
+from torch import Tensor
+
+SSIM_WINDOW = 11
+SSIM_SIGMA = 1.5
+
+
+@dataclass(frozen=True)
+class LossWeights:
+    """Weights of the objective's terms (the paper's lambda_1..lambda_4)."""
+
+    l1: float = 0.8
+    ssim: float = 0.2
+    lpips: float = 0.2
+    regularizer: float = 0.1
+
+
+def ssim(x: Tensor, y: Tensor) -> Tensor:
+    """(B,) SSIM of images (B, 3, H, W) in [0, 1]; 1 for identical images."""
+    return _ssim(x, y, data_range=1.0, size_average=False, win_size=SSIM_WINDOW, win_sigma=SSIM_SIGMA)
+
+
+def psnr(x: Tensor, y: Tensor) -> Tensor:
+    """(B,) PSNR in dB of images in [0, 1]; +inf for identical images."""
+    mse = (x - y).square().flatten(1).mean(1)
+    return torch.where(mse > 0, -10.0 * torch.log10(mse), torch.full_like(mse, math.inf))
+
+
+def image_losses(render: Tensor, target: Tensor, lpips=None) -> dict[str, Tensor]:
+    """Per-image terms (each (B,)) between renders and targets (B, 3, H, W)."""
+    terms = {
+        "l1": (render - target).abs().flatten(1).mean(1),
+        "dssim": 1.0 - ssim(render, target),
+    }
+    if lpips is not None:
+        terms["lpips"] = lpips(render, target)
+    return terms
+
+
+def objective(
+    static_render: Tensor,
+    dynamic_render: Tensor,
+    target: Tensor,
+    regularizer: Tensor,
+    weights: LossWeights = LossWeights(),
+    lpips=None,
+) -> tuple[Tensor, dict[str, float]]:
+    """The paper's loss on both renders (B, 3, H, W), averaged over the batch.
+
+    Returns the scalar loss and a dict of its terms for logging.
+    """
+    total = weights.regularizer * regularizer
+    log = {"reg": float(regularizer.detach())}
+    for name, render in (("s", static_render), ("d", dynamic_render)):
+        terms = image_losses(render, target, lpips)
+        total = total + weights.l1 * terms["l1"].mean() + weights.ssim * terms["dssim"].mean()
+        if "lpips" in terms:
+            total = total + weights.lpips * terms["lpips"].mean()
+        log.update({f"{key}_{name}": float(value.detach().mean()) for key, value in terms.items()})
+    log["loss"] = float(total.detach())
+    return total, log

@@ -1,0 +1,136 @@
+"""``pghm train-prior``: learn the identity bank, Feature Decoder and U-Net over many identities.
+
+Jointly optimises (paper, "Training objectives") the per-identity latents, the Feature
+Decoder, the multi-head U-Net and per-frame pose corrections (the stored poses are noisy
+estimates) with the loss on both renders I_s and I_d.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import torch
+
+from pghm.body import load_body
+from pghm.errors import PghmError
+from pghm.io.avatar import Avatar, save_avatar
+from pghm.model import PGHM, ModelConfig, subject_geometry
+from pghm.model.geometry import SubjectGeometry
+from pghm.train import distributed
+from pghm.train.data import PoseCorrections, TrainingData
+from pghm.train.lpips import load_lpips, lpips_status
+from pghm.train.loop import AvatarObjective, LoopConfig, LoopState, load_checkpoint, restore, run_stage
+from pghm.uv.atlas import build_atlas
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class PriorConfig:
+    """Prior training; defaults sized for a 2-core CPU."""
+
+    model: ModelConfig = field(default_factory=ModelConfig)
+    loop: LoopConfig = field(default_factory=lambda: LoopConfig(steps=3000, images_per_shard=4))
+    network_lr: float = 1e-3
+    """Adam learning rate of the Feature Decoder and the U-Net."""
+    latent_lr: float = 1e-2
+    """Adam learning rate of the bank latents."""
+    pose_lr: float = 1e-3
+    """Adam learning rate of the per-frame pose corrections (radians, metres)."""
+    refine_poses: bool = True
+    """Learn per-frame pose corrections."""
+    lpips: bool = True
+    """Use the LPIPS term when its weights are on this machine."""
+    body_model_path: str | None = None
+    """The user's model file for bodies that are not embedded (SMPL-X)."""
+    max_identities: int | None = None
+    """Train on the first this-many subjects only (the identity-count ablation); None: all."""
+
+
+def checkpoint_path(out: Path) -> Path:
+    return out.with_name(out.name + ".ckpt")
+
+
+class GeometryCache:
+    """Each identity's :class:`SubjectGeometry`, built on first use."""
+
+    def __init__(self, data: TrainingData, config: ModelConfig, body_model_path: str | None) -> None:
+        self.body = load_body(data.body_name, body_model_path)
+        self.atlas = build_atlas(self.body, config.uv_resolution)
+        self.data = data
+        self._cache: dict[int, SubjectGeometry] = {}
+
+    def __call__(self, identity: int) -> SubjectGeometry:
+        if identity not in self._cache:
+            self._cache[identity] = subject_geometry(self.body, self.atlas, self.data.shape(identity))
+        return self._cache[identity]
+
+
+def lpips_for(enabled: bool):
+    """(the LPIPS network or None, a status line for the metadata)."""
+    if not enabled:
+        return None, "LPIPS off: disabled by configuration"
+    network = load_lpips()
+    status = lpips_status()
+    if network is None:
+        log.warning("%s; the LPIPS loss term is dropped", status)
+    return network, status
+
+
+def train_prior(data_dir: str | Path, out: str | Path, config: PriorConfig = PriorConfig(), resume: bool = False) -> Avatar:
+    """Train a prior on the subjects in ``data_dir`` and save it to ``out``."""
+    distributed.init()
+    out = Path(out)
+    data = TrainingData(data_dir, max_identities=config.max_identities)
+    geometries = GeometryCache(data, config.model, config.body_model_path)
+    torch.manual_seed(config.loop.seed)
+    model = PGHM(config.model, num_identities=data.num_identities)
+    corrections = PoseCorrections(data.num_frames, geometries.body.num_bones) if config.refine_poses else None
+    lpips, lpips_line = lpips_for(config.lpips)
+    objective = AvatarObjective(model, None, corrections, config.loop.loss, lpips)
+    bank = [model.identity_bank]
+    network = [p for name, p in model.named_parameters() if name != "identity_bank"]
+    groups = [{"params": network, "lr": config.network_lr}, {"params": bank, "lr": config.latent_lr}]
+    if corrections is not None:
+        groups.append({"params": list(corrections.parameters()), "lr": config.pose_lr})
+    optimizer = torch.optim.Adam(groups)
+    trainable = [p for group in groups for p in group["params"]]
+
+    state = LoopState()
+    ckpt = checkpoint_path(out)
+    if resume:
+        if not ckpt.is_file():
+            raise PghmError(f"--resume: no checkpoint {ckpt} to continue from")
+        state = restore(load_checkpoint(ckpt), objective, optimizer)
+        log.info("resuming from %s at step %d", ckpt, state.step)
+    state = run_stage(
+        objective, trainable, optimizer, data, geometries, config.loop, ckpt, state, {"kind": "prior"}, "prior"
+    )
+    shapes = torch.stack([data.shape(i) for i in range(data.num_identities)])
+    avatar = Avatar(
+        model=model.eval(),
+        kind="prior",
+        body_name=data.body_name,
+        shape=shapes[0],
+        shapes=shapes,
+        metadata={
+            "command": "train-prior",
+            "data": str(Path(data_dir).resolve()),
+            "identities": data.num_identities,
+            "training_images": int(sum(len(i) for i in data.images)),
+            "steps": state.step,
+            "seconds": round(state.seconds, 1),
+            "skipped_steps": state.skipped_steps,
+            "skipped_images": [list(b) for b in state.bad_images],
+            "lpips": lpips_line,
+            "final": state.history[-1] if state.history else {},
+            "config": asdict(config),
+            "processes": distributed.world_size(),
+        },
+    )
+    if distributed.rank() == 0:
+        save_avatar(out, avatar)
+    return avatar
+

@@ -1,0 +1,152 @@
+"""The GL sprite renderer against the CPU splatter on an avatar's Gaussians.
+
+Truth is ``pghm.splat.render`` (the spec, float64 projection, native kernel). The GL image
+is read back from its float target before any 8-bit conversion. The avatar is a
+development avatar (random heads, 11,156 Gaussians on the 128 atlas, all opacities 1) in
+three poses (rest, a walk frame, a squat frame), each seen from several views: front, a
+raised three-quarter back view, from above, and a close-up whose near plane cuts the body
+and whose footprints cross the image border.
+
+Tolerances (the project's GL-vs-CPU bar): max abs error 2e-3, mean 1e-4 on RGB and alpha.
+Float32 rounding of the exponent and the blend accounts for ~1e-6; the max allows for a
+(pixel, Gaussian) pair whose alpha sits within rounding of the 1/255 cut-off and is kept by
+one side only (at most alpha T |c - behind| < 3.9e-3, which the float64 projection of the
+GL path makes much rarer than one pixel in these images, docs/viewer.md). The random
+scenes (near plane, borders, equal depths, heavy overlap) are in tests/test_gl_sprites.py.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from pghm.body import load_body
+from pghm.data.open_motion import open_motion
+from pghm.gl import SpriteRenderer, headless_context
+from pghm.model import ModelConfig
+from pghm.render_video import AvatarDriver, frame_points, orbit_camera
+from pghm.splat import Camera, render
+from viewer.demo import development_avatar
+
+pytestmark = pytest.mark.gl
+
+MAX_ERROR = 2e-3
+MEAN_ERROR = 1e-4
+SIZE = (320, 240)
+FAST_NETWORK = ModelConfig(
+    uv_resolution=128,
+    latent_channels=4,
+    encoder_channels=(4, 6, 8, 8, 8),
+    decoder_channels=(8, 8, 6, 4),
+    condition_channels=(2, 2, 4, 4, 4),
+)
+"""The default atlas (11,156 Gaussians) with a narrow network: the Gaussians are what matters."""
+POSES = {"rest": ("rest", 0), "walk": ("walk", 20), "squat": ("squat", 60)}
+"""Name -> (motion, frame)."""
+VIEWS = {"front": (0.0, 0.0, 1.0), "back_high": (135.0, 25.0, 1.0), "top": (30.0, 80.0, 1.0)}
+"""Name -> (yaw, pitch, distance as a fraction of the framing distance)."""
+
+
+@pytest.fixture(scope="module")
+def driver():
+    torch.set_num_threads(2)
+    return AvatarDriver(development_avatar(FAST_NETWORK, seed=3))
+
+
+@pytest.fixture(scope="module")
+def gl():
+    ctx = headless_context()
+    renderer = SpriteRenderer(ctx)
+    yield renderer
+    renderer.release()
+    ctx.release()
+
+
+@pytest.fixture(scope="module")
+def posed(driver):
+    """Pose name -> the avatar's dynamic Gaussians (numpy) in that pose, seen from the front."""
+    body = load_body("anny")
+    identity = driver.avatar.identity_map()
+    out = {}
+    for name, (motion_name, frame) in POSES.items():
+        motion = open_motion(motion_name, body, driver.geometry.shape)
+        out[name] = driver.evaluate(identity, motion.pose(frame), np.array([0.0, 0.0, 3.0]))
+    return out
+
+
+def compare(gl: SpriteRenderer, arrays, camera: Camera, background=(1.0, 1.0, 1.0)) -> dict[str, float]:
+    gl.set_gaussians(arrays.means, arrays.scales, arrays.colors, arrays.opacities)
+    image = gl.render(camera, background)
+    truth = render(
+        *(torch.from_numpy(a) for a in (arrays.means, arrays.scales, arrays.colors, arrays.opacities)),
+        camera,
+        background=background,
+    )
+    rgb_error = np.abs(image.rgb - truth.rgb.numpy())
+    alpha_error = np.abs(image.alpha - truth.alpha.numpy())
+    return {
+        "rgb_max": float(rgb_error.max()),
+        "rgb_mean": float(rgb_error.mean()),
+        "alpha_max": float(alpha_error.max()),
+        "alpha_mean": float(alpha_error.mean()),
+        "covered": float((truth.alpha.numpy() > 0.5).mean()),
+    }
+
+
+def assert_close(errors: dict[str, float], where: str) -> None:
+    assert errors["rgb_max"] <= MAX_ERROR and errors["alpha_max"] <= MAX_ERROR, (where, errors)
+    assert errors["rgb_mean"] <= MEAN_ERROR and errors["alpha_mean"] <= MEAN_ERROR, (where, errors)
+
+
+@pytest.mark.parametrize("pose", list(POSES))
+@pytest.mark.parametrize("view", list(VIEWS))
+def test_avatar_views_match_the_cpu_splatter(gl, driver, posed, pose, view):
+    arrays = posed[pose]
+    framing = frame_points(arrays.means, 40.0, SIZE[0] / SIZE[1])
+    yaw, pitch, fraction = VIEWS[view]
+    camera = orbit_camera(framing.target, yaw, pitch, framing.distance * fraction, 40.0, *SIZE)
+    errors = compare(gl, arrays, camera)
+    assert errors["covered"] > 0.02, "the avatar is in view"
+    assert_close(errors, f"{pose}/{view}")
+
+
+def test_close_up_through_the_body_with_the_near_plane_and_borders(gl, driver, posed):
+    """The camera sits inside the torso's bounding box: Gaussians behind it, straddling the
+    near plane, and footprints far larger than the image crossing its borders."""
+    arrays = posed["rest"]
+    x, y = arrays.means[:, 0], arrays.means[:, 1]
+    chest = arrays.means[(np.abs(x) < 0.15) & (y > 0.2) & (y < 0.4)].mean(axis=0)  # inside the torso
+    camera = orbit_camera(chest, 20.0, 10.0, 0.05, 70.0, 160, 120)
+    w2c = camera.world_to_camera.double().numpy()
+    depths = arrays.means @ w2c[2, :3] + w2c[2, 3]
+    assert (depths <= 0.01).any() and (depths > 0.01).any(), "some Gaussians are behind the near plane"
+    errors = compare(gl, arrays, camera, background=(0.2, 0.4, 0.6))
+    assert errors["covered"] > 0.2
+    assert_close(errors, "close-up")
+
+
+def test_static_and_dynamic_sets_both_match(gl, driver):
+    identity = driver.avatar.identity_map()
+    pose = open_motion("walk", driver.body, driver.geometry.shape).pose(40)
+    camera = orbit_camera((0.0, 0.0, 0.5), -60.0, 5.0, 2.6, 40.0, *SIZE)
+    for gaussians in ("static", "dynamic"):
+        arrays = driver.evaluate(identity, pose, camera.centre, gaussians=gaussians)
+        assert_close(compare(gl, arrays, camera), gaussians)
+
+
+def test_double_projection_by_default_and_the_float_fallback_meets_the_bar(gl, posed):
+    """llvmpipe offers OpenGL 4.5, so "auto" picks the float64 projection; the OpenGL 3.3
+    float path stays available and within the same tolerance."""
+    from pghm.gl.sprites import supports_fp64
+
+    assert gl.precision == ("double" if supports_fp64(gl.ctx) else "float")
+    arrays = posed["walk"]
+    framing = frame_points(arrays.means, 40.0, SIZE[0] / SIZE[1])
+    camera = orbit_camera(framing.target, -30.0, 10.0, framing.distance, 40.0, *SIZE)
+    fallback = SpriteRenderer(gl.ctx, precision="float")
+    try:
+        assert fallback.precision == "float"
+        assert_close(compare(fallback, arrays, camera), "float projection")
+    finally:
+        fallback.release()

@@ -1,0 +1,144 @@
+"""Training: the prior learns, fit's two stages touch the right tensors, resume is exact,
+eval's metrics are right at the extremes, and a bad learning rate leaves no NaN."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from conftest import TINY_MODEL
+from pghm.model import ModelConfig
+from pghm.train.data import TrainingData
+from pghm.train.fit import FitConfig, fit, network_parameters
+from pghm.train.loop import LoopConfig
+from pghm.train.prior import PriorConfig, train_prior
+
+MODEL = ModelConfig(**TINY_MODEL)
+
+
+def prior_config(steps: int, **loop) -> PriorConfig:
+    return PriorConfig(
+        model=MODEL,
+        loop=LoopConfig(steps=steps, images_per_shard=2, checkpoint_every=0, **loop),
+        network_lr=3e-3,
+        latent_lr=5e-2,
+        lpips=False,
+    )
+
+
+def fixed_loss(avatar, data: TrainingData) -> float:
+    """The objective on a fixed set of images (every training image of both identities)."""
+    from pghm.train.loop import AvatarObjective
+    from pghm.train.prior import GeometryCache
+
+    geometries = GeometryCache(data, avatar.model.config, None)
+    objective = AvatarObjective(avatar.model, None, None, LoopConfig().loss, None)
+    with torch.no_grad():
+        losses = [
+            objective(data.load_group(i, list(data.images[i])), geometries(i))[0].item()
+            for i in range(data.num_identities)
+        ]
+    return float(np.mean(losses))
+
+
+@pytest.fixture(scope="module")
+def prior_file(tiny_dataset, tmp_path_factory):
+    path = tmp_path_factory.mktemp("prior") / "prior.pt"
+    train_prior(tiny_dataset, path, prior_config(steps=12))
+    return path
+
+
+def test_two_identity_prior_loss_falls(tiny_dataset, tmp_path):
+    data = TrainingData(tiny_dataset)
+    assert data.num_identities == 2
+    untrained = train_prior(tiny_dataset, tmp_path / "p0.pt", prior_config(steps=0))
+    trained = train_prior(tiny_dataset, tmp_path / "p1.pt", prior_config(steps=15))
+    before, after = fixed_loss(untrained, data), fixed_loss(trained, data)
+    assert after < 0.9 * before, (before, after)
+    assert trained.kind == "prior" and trained.shapes.shape == (2, 6)
+    assert trained.metadata["steps"] == 15 and trained.metadata["lpips"].startswith("LPIPS off")
+
+
+def test_fit_stage1_changes_only_the_latent_stage2_also_the_unet(tiny_dataset, prior_file, tmp_path):
+    from pghm.io.avatar import load_avatar
+
+    subject = tiny_dataset / "subject_001"
+    original = {k: v.clone() for k, v in load_avatar(prior_file).model.state_dict().items()}
+    prior = load_avatar(prior_file)
+    config = FitConfig(
+        stage1=LoopConfig(steps=3, images_per_shard=2, checkpoint_every=0),
+        stage2=LoopConfig(steps=0, images_per_shard=2, checkpoint_every=0),
+        lpips=False,
+    )
+    stage1 = fit(subject, prior, tmp_path / "a1.pt", config)
+    for name, value in stage1.model.state_dict().items():
+        assert torch.equal(value, original[name]), f"stage 1 changed {name}"
+    from pghm.train.fit import initial_latent
+
+    assert not torch.equal(stage1.latent, initial_latent(load_avatar(prior_file).model))
+
+    prior = load_avatar(prior_file)
+    config.stage2 = LoopConfig(steps=3, images_per_shard=2, checkpoint_every=0)
+    stage2 = fit(subject, prior, tmp_path / "a2.pt", config)
+    changed = {name for name, value in stage2.model.state_dict().items() if not torch.equal(value, original[name])}
+    tuned = {name for name, p in stage2.model.named_parameters() if any(p is q for q in network_parameters(stage2.model))}
+    assert changed and changed <= tuned
+    assert any(name.startswith("unet_encoder") for name in changed)
+    assert not any(name.startswith(("identity_bank", "feature_decoder")) for name in changed)
+
+
+def test_resume_gives_the_same_parameters(tiny_dataset, tmp_path):
+    straight = train_prior(tiny_dataset, tmp_path / "straight.pt", prior_config(steps=6))
+    first = prior_config(steps=3)
+    first.loop.checkpoint_every = 3
+    train_prior(tiny_dataset, tmp_path / "resumed.pt", first)
+    resumed = train_prior(tiny_dataset, tmp_path / "resumed.pt", prior_config(steps=6), resume=True)
+    for (name, a), (_, b) in zip(straight.model.state_dict().items(), resumed.model.state_dict().items()):
+        # The same batches and optimizer state: equal up to float reassociation in threaded kernels.
+        torch.testing.assert_close(a, b, atol=1e-6, rtol=1e-5, msg=name)
+
+
+def test_eval_of_a_perfect_render(tiny_dataset, prior_file, tmp_path, monkeypatch):
+    """When the render equals the ground truth, PSNR is +inf and SSIM is 1."""
+    from pghm.train import evaluate as evaluate_module
+
+    avatar = fit(
+        tiny_dataset / "subject_000", prior_file, tmp_path / "a.pt",
+        FitConfig(stage1=LoopConfig(steps=1, checkpoint_every=0), stage2=LoopConfig(steps=0), lpips=False),
+    )
+
+    def perfect(avatar, data, indices, body_model_path=None):
+        for index in indices:
+            target = data.load(0, index).image
+            yield index, target, target.clone()
+
+    monkeypatch.setattr(evaluate_module, "render_images", perfect)
+    result = evaluate_module.evaluate(avatar, tiny_dataset / "subject_000", tmp_path / "r.json", tmp_path / "s.png")
+    assert result.images and all(math.isinf(p) and p > 0 for p in result.psnr)
+    assert result.ssim == pytest.approx([1.0] * len(result.ssim), abs=1e-6)
+    assert math.isinf(result.summary()["psnr"])
+    assert (tmp_path / "r.json").is_file() and (tmp_path / "s.png").is_file()
+
+
+def test_eval_of_a_real_avatar_writes_reports(tiny_dataset, prior_file, tmp_path):
+    from pghm.train.evaluate import evaluate
+
+    avatar = fit(
+        tiny_dataset / "subject_000", prior_file, tmp_path / "a.pt",
+        FitConfig(stage1=LoopConfig(steps=1, checkpoint_every=0), stage2=LoopConfig(steps=1, checkpoint_every=0), lpips=False),
+    )
+    result = evaluate(avatar, tiny_dataset / "subject_000", tmp_path / "r.json", tmp_path / "s.png")
+    summary = result.summary()
+    assert 5 < summary["psnr"] < 60 and 0 < summary["ssim"] < 1
+
+
+def test_learning_rate_ten_times_too_high_leaves_no_nan(tiny_dataset, tmp_path, caplog):
+    config = prior_config(steps=8)
+    config.network_lr = 10.0
+    config.latent_lr = 100.0
+    avatar = train_prior(tiny_dataset, tmp_path / "hot.pt", config)
+    for name, value in avatar.model.state_dict().items():
+        assert torch.isfinite(value).all(), name

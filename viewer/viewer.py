@@ -1,0 +1,448 @@
+"""The viewer's state object: actions (plain methods), one :meth:`Viewer.frame`, set-up and teardown.
+
+The UI (:mod:`viewer.panels`) and the tests call the same action methods
+(``set_pose_slider``, ``scrub_to``, ``set_region_gain``, ``orbit``, ``screenshot``, ...);
+an action only changes state, and the next :meth:`Viewer.frame` does the work that state
+implies:
+
+1. events and UI (imgui), mouse gestures on the scene viewport -> camera actions;
+2. the motion clock (or the fixed step of a motion recording);
+3. the model, through the scene's cached evaluator (only the branches whose inputs
+   changed re-run; an unchanged state costs nothing);
+4. the sprites (``pghm.gl.SpriteRenderer.draw``) into a cached scene image, only when the
+   Gaussians, camera or display changed; the cache is copied to the window every frame;
+5. overlays, UI, screenshot / recording capture, buffer swap.
+
+GL resources exist between :meth:`setup` and :meth:`teardown`; constructing a Viewer only
+loads the avatar (so a bad file fails before any window opens).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+
+from pghm.errors import PghmError
+from pghm.io.avatar import load_avatar
+from pghm.render_video import GaussianArrays, GaussianSet
+from viewer.camera import OrbitController
+from viewer.panels import PanelState, draw_panels, handle_mouse
+from viewer.recording import Recording, RecordSource, save_png, start_recording
+from viewer.scene import AvatarScene
+from viewer.settings import BACKFACE_MARGIN, PANEL_WIDTH, SCALE_RANGE, WINDOW_SIZE, DisplaySettings, HudStats
+
+IDLE_WAIT = 0.05
+"""Seconds the loop sleeps waiting for input when nothing animates (the machine is shared)."""
+FPS_SMOOTHING = 0.9
+"""Exponential smoothing of the HUD's frames per second."""
+
+
+@dataclass
+class _Requests:
+    """Actions that need the next frame's pixels."""
+
+    screenshot: tuple[Path, bool] | None = None
+    recording: Recording | None = None
+
+
+@dataclass
+class _Cache:
+    """Keys of what the GL side last received, to skip unchanged uploads and draws."""
+
+    arrays: GaussianArrays | None = None
+    upload_key: tuple | None = None
+    scene_key: tuple | None = None
+    mesh_key: tuple | None = None
+    mesh_topology_sent: bool = False
+    set_gaussians_ms: float = 0.0
+    """Time of the last ``set_gaussians`` not yet counted in the HUD's upload."""
+
+
+class Viewer:
+    """The live viewer of one avatar or prior file.
+
+    Args:
+        avatar_path: the ``.pt`` file to open (errors raise :class:`~pghm.errors.AvatarFileError`).
+        window_size: (W, H) screen pixels.
+        body_model_path: the model file of bodies that are not embedded (SMPL-X).
+    """
+
+    def __init__(
+        self, avatar_path: str | Path, window_size: tuple[int, int] = WINDOW_SIZE, body_model_path: str | None = None
+    ) -> None:
+        self.avatar_path = Path(avatar_path)
+        self.window_size = window_size
+        self.body_model_path = body_model_path
+        self.scene = AvatarScene(load_avatar(self.avatar_path), body_model_path)
+        self.camera = OrbitController(home=self.scene.framing(self._scene_aspect(window_size)))
+        self.display = DisplaySettings()
+        self.hud = HudStats()
+        self.error: str | None = None
+        """The last failed action's one-line message, shown in the UI."""
+        self.message: str | None = None
+        """The last completed output action (screenshot written, recording saved)."""
+        self.last_screenshot: np.ndarray | None = None
+        self.panel_state = PanelState(avatar_path=str(self.avatar_path))
+        self.driver = ""
+        """The GL renderer and version strings (known after set-up), shown in the panel."""
+        self.window = None
+        self._requests = _Requests()
+        self._cache = _Cache()
+        self._last_frame = time.perf_counter()
+
+    # ------------------------------------------------------------------ set-up
+
+    def setup(self) -> None:
+        """Open the window and create the GL resources (raises DisplayError without a display)."""
+        from pghm.gl import SpriteRenderer, driver_info
+        from viewer.overlay import OverlayRenderer, SceneCache
+        from viewer.window import Window
+
+        self.window = Window(f"pghm-view - {self.avatar_path.name}", self.window_size)
+        self.driver = str(driver_info(self.window.ctx))
+        self.renderer = SpriteRenderer(self.window.ctx)
+        self.overlay = OverlayRenderer(self.window.ctx)
+        self.scene_cache = SceneCache(self.window.ctx)
+        self._cache = _Cache()
+
+    def teardown(self) -> None:
+        """Finish a recording, free every GL object and close the window."""
+        self.stop_recording()
+        if self.window is None:
+            return
+        self.scene_cache.release()
+        self.overlay.release()
+        self.renderer.release()
+        self.window.close()
+        self.window = None
+
+    def run(self) -> None:
+        """Set up, loop over frames until the window closes, tear down."""
+        self.setup()
+        try:
+            while not self.window.should_close():
+                if not self.animating:
+                    self.window.poll(IDLE_WAIT)
+                self.frame()
+        finally:
+            self.teardown()
+
+    @property
+    def animating(self) -> bool:
+        """Whether frames must come without input: playing, or recording."""
+        return self.scene.pose_state.playing or self._requests.recording is not None
+
+    # ------------------------------------------------------------- the frame
+
+    def frame(self) -> None:
+        """One frame: events and UI, clock, model, sprites, overlays, capture, swap."""
+        now = time.perf_counter()
+        elapsed, self._last_frame = now - self._last_frame, now
+        window = self.window
+        window.poll()
+        window.begin_ui()
+        draw_panels(self)
+        handle_mouse(self)
+
+        recording = self._requests.recording
+        if recording is not None and recording.source == "motion":
+            self.scene.pose_state.time = recording.motion_time()
+        else:
+            self.scene.pose_state.advance(elapsed)
+
+        viewport = self.scene_viewport()
+        camera = self._scene_camera(viewport)
+        arrays = self._update_gaussians(camera)
+        self._draw_scene(camera, viewport, arrays)
+        if recording is not None and recording.source == "motion":
+            self._write_frame(recording, window.read_pixels(viewport))
+        screenshot = self._requests.screenshot
+        if screenshot is not None and not screenshot[1]:
+            self._save_screenshot(screenshot[0], window.read_pixels(viewport))
+        window.end_ui()
+        if screenshot is not None and screenshot[1]:
+            self._save_screenshot(screenshot[0], window.read_pixels())
+        if recording is not None and recording.source == "window" and self._requests.recording is recording:
+            self._write_frame(recording, window.read_pixels())
+        window.swap()
+
+        frame_ms = (time.perf_counter() - now) * 1e3
+        hud = self.hud
+        hud.frame_ms = frame_ms
+        rate = 1e3 / max(elapsed * 1e3, 1e-3)
+        hud.fps = rate if hud.fps == 0 else FPS_SMOOTHING * hud.fps + (1 - FPS_SMOOTHING) * rate
+
+    def scene_viewport(self) -> tuple[int, int, int, int]:
+        """(x, y, W, H) of the scene in GL framebuffer pixels: right of the panel, full height."""
+        width, height = self.window.framebuffer_size() if self.window else self.window_size
+        panel = min(self._panel_pixels(), width - 1)
+        return panel, 0, max(width - panel, 1), max(height, 1)
+
+    def _panel_pixels(self) -> int:
+        """The panel's width in framebuffer pixels (screen pixels times the HiDPI scale)."""
+        if self.window is None:
+            return PANEL_WIDTH
+        from imgui_bundle import imgui
+
+        return int(round(PANEL_WIDTH * imgui.get_io().display_framebuffer_scale.x))
+
+    def _scene_aspect(self, window_size: tuple[int, int]) -> float:
+        return max(window_size[0] - PANEL_WIDTH, 1) / max(window_size[1], 1)
+
+    def current_camera(self):
+        """The scene's :class:`~pghm.splat.Camera` for the current viewport, pose (when following) and orbit."""
+        return self._scene_camera(self.scene_viewport())
+
+    def _scene_camera(self, viewport: tuple[int, int, int, int]):
+        self.camera.offset = self.scene.root_shift() if self.display.follow else np.zeros(3)
+        return self.camera.camera(viewport[2], viewport[3])
+
+    def _update_gaussians(self, camera) -> GaussianArrays:
+        """Run the model if anything it depends on changed, and upload what the renderer needs."""
+        display = self.display
+        arrays = self.scene.evaluate(camera.centre.numpy(), display.gaussians, display.view_dependent)
+        times = self.scene.driver.times
+        hud = self.hud
+        hud.gaussians = arrays.count
+        if arrays is not self._cache.arrays:  # the model produced new Gaussians: show what that cost
+            hud.model_ms, hud.skinning_ms = times.model_ms, times.skinning_ms
+        cull_key = camera.centre.numpy().tobytes() if display.cull_backfacing else None
+        key = (id(arrays), display.scale_multiplier, cull_key)
+        if key != self._cache.upload_key or arrays is not self._cache.arrays:
+            start = time.perf_counter()
+            keep = self._facing(arrays, camera.centre.numpy()) if display.cull_backfacing else slice(None)
+            scales = arrays.scales[keep] * display.scale_multiplier
+            self.renderer.set_gaussians(arrays.means[keep], scales, arrays.colors[keep], arrays.opacities[keep])
+            self.overlay.set_points(arrays.means)
+            self._cache.set_gaussians_ms = (time.perf_counter() - start) * 1e3
+            hud.drawn = self.renderer.count
+            self._cache.upload_key, self._cache.arrays = key, arrays
+        return arrays
+
+    @staticmethod
+    def _facing(arrays: GaussianArrays, centre: np.ndarray) -> np.ndarray:
+        """(N,) bool: Gaussians whose normal n has n . v >= -BACKFACE_MARGIN, v the unit vector to the camera."""
+        view = centre[None, :].astype(np.float32) - arrays.means
+        cosine = (arrays.normals * view).sum(axis=1) / np.maximum(np.linalg.norm(view, axis=1), 1e-9)
+        return cosine >= -BACKFACE_MARGIN
+
+    def _draw_scene(self, camera, viewport: tuple[int, int, int, int], arrays: GaussianArrays) -> None:
+        """Sprites into the scene cache when something visible changed; cache and overlays to the window."""
+        display = self.display
+        hud = self.hud
+        w2c = camera.world_to_camera.double().numpy().tobytes()
+        scene_key = (self._cache.upload_key, w2c, viewport[2:], display.background, display.render_scale)
+        hud.scene_redrawn = scene_key != self._cache.scene_key
+        if hud.scene_redrawn:
+            target = self.scene_cache.target((viewport[2], viewport[3]))
+            internal = camera
+            if display.render_scale != 1.0:
+                width = max(1, round(viewport[2] * display.render_scale))
+                height = max(1, round(viewport[3] * display.render_scale))
+                internal = self.camera.camera(width, height)
+            timings = self.renderer.draw(internal, display.background, target=target, viewport=(0, 0, *viewport[2:]))
+            hud.sort_ms, hud.draw_ms = timings.sort_ms, timings.draw_ms
+            hud.upload_ms = self._cache.set_gaussians_ms + timings.upload_ms
+            self._cache.set_gaussians_ms = 0.0
+            self._cache.scene_key = scene_key
+        screen = self.window.ctx.screen
+        screen.use()
+        self.window.ctx.viewport = (0, 0, *self.window.framebuffer_size())
+        screen.clear(*display.background, 1.0)
+        self.scene_cache.show(screen, viewport)
+        if display.show_mesh:
+            self._update_mesh()
+        self.overlay.draw(camera, viewport, centres=display.show_centres, mesh=display.show_mesh)
+
+    def _update_mesh(self) -> None:
+        pose = self.scene.current_pose()
+        key = (pose.rotations.numpy().tobytes(), pose.translation.numpy().tobytes(), id(self.scene.driver))
+        if key != self._cache.mesh_key:
+            edges = None if self._cache.mesh_topology_sent else self.scene.mesh_edges()
+            self.overlay.set_mesh(self.scene.posed_mesh(), edges)
+            self._cache.mesh_key, self._cache.mesh_topology_sent = key, True
+
+    # ------------------------------------------------------------------ actions: file
+
+    def open_avatar(self, path: str | Path) -> None:
+        """Replace the avatar; on a bad file the error is raised and the current avatar stays."""
+        scene = AvatarScene(load_avatar(path), self.body_model_path)
+        self.scene = scene
+        self.avatar_path = Path(path)
+        self.camera.home = scene.framing(self._scene_aspect(self._window_pixels()))
+        self.camera.reset()
+        self._cache = _Cache()
+
+    def try_action(self, action, *args) -> bool:
+        """Call ``action(*args)`` for the UI: a PghmError becomes :attr:`error` (one line) instead of an exception."""
+        try:
+            action(*args)
+        except PghmError as error:
+            self.error = str(error).splitlines()[0]
+            return False
+        self.error = None
+        return True
+
+    # ------------------------------------------------------------------ actions: pose, motion
+
+    def set_pose_slider(self, joint: str, axis: int | str, degrees: float) -> None:
+        """Rotate ``joint`` about rest-aligned ``axis`` (x, y, z or 0-2) by ``degrees`` (see viewer.scene.PoseState)."""
+        self.scene.set_pose_slider(joint, axis, degrees)
+
+    def reset_pose(self) -> None:
+        self.scene.reset_pose()
+
+    def open_motion(self, source: str) -> None:
+        """A motion file (.npz, .bvh) or a procedural name; the timeline restarts."""
+        self.scene.open_motion(source)
+
+    def scrub_to(self, frame: int) -> None:
+        self.scene.scrub_to(frame)
+
+    def set_playing(self, playing: bool) -> None:
+        self.scene.pose_state.playing = bool(playing)
+
+    def set_loop(self, loop: bool) -> None:
+        self.scene.pose_state.loop = bool(loop)
+
+    def set_speed(self, speed: float) -> None:
+        self.scene.set_speed(speed)
+
+    # --------------------------------------------------------------- actions: identity
+
+    def pick_identity(self, index: int) -> None:
+        self.scene.pick_identity(index)
+
+    def set_blend(self, index_b: int, weight: float) -> None:
+        self.scene.identity.set_blend(index_b, weight)
+
+    def set_component(self, k: int, value: float) -> None:
+        """PCA slider ``k`` of the bank latents, in standard deviations."""
+        self.scene.identity.set_component(k, value)
+
+    def set_region_gain(self, region: str | int, gain: float) -> None:
+        """Multiply the identity latent on one body region (pghm.uv.regions) by ``gain``."""
+        self.scene.identity.set_region_gain(region, gain)
+
+    def reset_identity(self) -> None:
+        self.scene.reset_identity()
+
+    # ----------------------------------------------------------------- actions: camera
+
+    def orbit(self, dx_pixels: float, dy_pixels: float) -> None:
+        self.camera.orbit(dx_pixels, dy_pixels)
+
+    def pan(self, dx_pixels: float, dy_pixels: float) -> None:
+        self.camera.pan(dx_pixels, dy_pixels, self.scene_viewport()[3])
+
+    def zoom(self, steps: float) -> None:
+        self.camera.zoom(steps)
+
+    def reset_camera(self) -> None:
+        self.camera.reset()
+
+    def snap_camera(self, view: str) -> None:
+        """front, left, back, right or top."""
+        self.camera.snap(view)
+
+    def set_fov(self, degrees: float) -> None:
+        self.camera.set_fov(degrees)
+
+    # ---------------------------------------------------------------- actions: display
+
+    def set_gaussian_set(self, which: GaussianSet) -> None:
+        if which not in ("dynamic", "static"):
+            raise PghmError(f"Gaussian set must be 'dynamic' or 'static', got {which!r}")
+        self.display.gaussians = which
+
+    def set_view_dependent(self, enabled: bool) -> None:
+        self.display.view_dependent = bool(enabled)
+
+    def set_scale_multiplier(self, factor: float) -> None:
+        if not SCALE_RANGE[0] <= factor <= SCALE_RANGE[1]:
+            raise PghmError(f"point-size modifier must be in [{SCALE_RANGE[0]}, {SCALE_RANGE[1]}], got {factor}")
+        self.display.scale_multiplier = float(factor)
+
+    def set_background(self, rgb: tuple[float, float, float]) -> None:
+        if len(rgb) != 3 or not all(0.0 <= c <= 1.0 for c in rgb):
+            raise PghmError(f"background must be three values in [0, 1], got {rgb}")
+        self.display.background = tuple(float(c) for c in rgb)
+
+    def set_overlays(self, centres: bool, mesh: bool) -> None:
+        self.display.show_centres, self.display.show_mesh = bool(centres), bool(mesh)
+
+    def set_render_scale(self, scale: float) -> None:
+        """Approximation: internal resolution as a fraction of the viewport (1 = exact)."""
+        if not 0.1 <= scale <= 1.0:
+            raise PghmError(f"render scale must be in [0.1, 1], got {scale}")
+        self.display.render_scale = float(scale)
+
+    def set_backface_culling(self, enabled: bool) -> None:
+        """Approximation: skip Gaussians facing away from the camera."""
+        self.display.cull_backfacing = bool(enabled)
+
+    def set_follow(self, enabled: bool) -> None:
+        self.display.follow = bool(enabled)
+
+    # ----------------------------------------------------------------- actions: output
+
+    def screenshot(self, path: str | Path | None = None, include_ui: bool = True) -> Path:
+        """Write a PNG of the next frame (the window, or the scene alone); returns its path.
+
+        The pixels are also kept in :attr:`last_screenshot` ((H, W, 3) uint8).
+        """
+        path = Path(path) if path else Path(f"pghm_screenshot_{datetime.now():%Y%m%d_%H%M%S}.png")
+        if path.suffix.lower() != ".png":
+            raise PghmError(f"screenshots are PNG files, got {path}")
+        self._requests.screenshot = (path, include_ui)
+        return path
+
+    def start_recording(self, path: str | Path, source: RecordSource = "window", fps: float = 30.0) -> None:
+        """Record the window from now on, or the motion from the current frame to its end at ``fps``."""
+        self.stop_recording()
+        state = self.scene.pose_state
+        frames = int(np.floor((state.motion.duration - state.time) * fps + 1e-9)) + 1
+        self._requests.recording = start_recording(
+            path, source, fps, motion_start=state.time, motion_frames=frames, log=self._note
+        )
+        if source == "motion":
+            state.playing = False
+
+    def stop_recording(self) -> Path | None:
+        """Close the recording file (if any); returns its path."""
+        recording, self._requests.recording = self._requests.recording, None
+        if recording is None:
+            return None
+        recording.sink.close()
+        self._note(f"recorded {recording.sink.frames} frames to {recording.sink.path}")
+        return recording.sink.path
+
+    @property
+    def recording(self) -> Recording | None:
+        return self._requests.recording
+
+    def _write_frame(self, recording: Recording, image: np.ndarray) -> None:
+        try:
+            recording.sink.write(image)
+        except PghmError as error:
+            self.error = str(error)
+            self.stop_recording()
+            return
+        if recording.done:
+            self.stop_recording()
+
+    def _save_screenshot(self, path: Path, image: np.ndarray) -> None:
+        self._requests.screenshot = None
+        self.last_screenshot = image
+        save_png(path, image)
+        self._note(f"saved {path}")
+
+    def _note(self, text: str) -> None:
+        self.message = text
+
+    def _window_pixels(self) -> tuple[int, int]:
+        return self.window.framebuffer_size() if self.window else self.window_size
