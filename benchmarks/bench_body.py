@@ -9,8 +9,8 @@ build from cache in at most 50 ms.
 from __future__ import annotations
 
 import torch
-
 from common import median_ms, print_table, setup_threads, write_json
+
 from pghm.body import BodyPose, load_body
 from pghm.uv import atlas as atlas_module
 from pghm.uv.atlas import build_atlas

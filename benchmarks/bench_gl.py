@@ -166,8 +166,11 @@ def bench_accuracy(renderer: SpriteRenderer, scene: tuple[np.ndarray, ...], view
         e = np.array(errors)
         cam = orbit_camera(0.0, render_scale)
         results[f"{cam.width}x{cam.height}"] = {
-            "views": views, "rgb_max": float(e[:, 0].max()), "rgb_mean": float(e[:, 1].mean()),
-            "alpha_max": float(e[:, 2].max()), "alpha_mean": float(e[:, 3].mean()),
+            "views": views,
+            "rgb_max": float(e[:, 0].max()),
+            "rgb_mean": float(e[:, 1].mean()),
+            "alpha_max": float(e[:, 2].max()),
+            "alpha_mean": float(e[:, 3].mean()),
             "pixels_over_2e-3_per_view": float(e[:, 4].mean()),
         }
     return results
@@ -198,9 +201,15 @@ def main() -> None:
 
     ctx = headless_context()
     driver = driver_info(ctx)
-    results: dict = {"driver": str(driver), "machine": platform.processor() or platform.machine(),
-                     "cpus": os.cpu_count(), "load_average_at_start": os.getloadavg()[0], "sort": {},
-                     "frames": {}, "upload": {}}
+    results: dict = {
+        "driver": str(driver),
+        "machine": platform.processor() or platform.machine(),
+        "cpus": os.cpu_count(),
+        "load_average_at_start": os.getloadavg()[0],
+        "sort": {},
+        "frames": {},
+        "upload": {},
+    }
     print(f"driver: {driver}; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
     if args.png:
         with SpriteRenderer(ctx) as renderer:
@@ -224,20 +233,26 @@ def main() -> None:
             if render_scale == 1.0:
                 results["upload"][count] = bench_upload(ctx, renderer, scenes[count], 5)
         for name, t in results["frames"][label].items():
-            print(f"  N={count:>7,} render scale {render_scale:g}  {name:<10} "
-                  f"{t['min_ms']:8.2f} / {t['median_ms']:8.2f} / {t['p90_ms']:8.2f}")
+            print(
+                f"  N={count:>7,} render scale {render_scale:g}  {name:<10} "
+                f"{t['min_ms']:8.2f} / {t['median_ms']:8.2f} / {t['p90_ms']:8.2f}"
+            )
 
     print("\nupload when the Gaussians change (ms, median)")
     for count, t in results["upload"].items():
-        print(f"  N={count:>7,}  set_gaussians {t['set_gaussians_ms']:6.2f}"
-              f"   texture writes {t['texture_upload_ms']:6.2f}")
+        print(
+            f"  N={count:>7,}  set_gaussians {t['set_gaussians_ms']:6.2f}"
+            f"   texture writes {t['texture_upload_ms']:6.2f}"
+        )
 
     print("\naccuracy vs pghm.splat.render, body scene N=10,000, white background")
     with SpriteRenderer(ctx) as renderer:
         results["accuracy"] = bench_accuracy(renderer, scenes[10_000], args.views)
     for size, t in results["accuracy"].items():
-        print(f"  {size:>9}  rgb max {t['rgb_max']:.1e} mean {t['rgb_mean']:.1e}   alpha max {t['alpha_max']:.1e}"
-              f" mean {t['alpha_mean']:.1e}   pixels > 2e-3 per view {t['pixels_over_2e-3_per_view']:.2f}")
+        print(
+            f"  {size:>9}  rgb max {t['rgb_max']:.1e} mean {t['rgb_mean']:.1e}   alpha max {t['alpha_max']:.1e}"
+            f" mean {t['alpha_mean']:.1e}   pixels > 2e-3 per view {t['pixels_over_2e-3_per_view']:.2f}"
+        )
 
     ctx.release()
     RESULTS.parent.mkdir(parents=True, exist_ok=True)

@@ -15,8 +15,8 @@ from __future__ import annotations
 import resource
 
 import torch
-
 from common import median_ms, print_table, setup_threads, write_json
+
 from pghm.body import BodyPose, load_body
 from pghm.model import PGHM, ModelConfig, subject_geometry
 from pghm.model.evaluator import CachedEvaluator

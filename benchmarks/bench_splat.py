@@ -86,10 +86,24 @@ def main() -> None:
 
     speed = with_ratios(speed_table(SPEED_CASES, args.repeats, args.baseline_repeats))
     print("\nSpeed on the body scene (median ms, 2 threads; speed-up = baseline / renderer)")
-    print(format_table(speed, ["renderer", "gaussians", "resolution", "forward_ms", "forward_backward_ms",
-                               "forward_speedup", "forward_backward_speedup"]))
-    write_json(RESULTS / "bench_splat.json", {"speed": speed, "scaling": scaling, "repeats": args.repeats,
-                                              "baseline_repeats": args.baseline_repeats})
+    print(
+        format_table(
+            speed,
+            [
+                "renderer",
+                "gaussians",
+                "resolution",
+                "forward_ms",
+                "forward_backward_ms",
+                "forward_speedup",
+                "forward_backward_speedup",
+            ],
+        )
+    )
+    write_json(
+        RESULTS / "bench_splat.json",
+        {"speed": speed, "scaling": scaling, "repeats": args.repeats, "baseline_repeats": args.baseline_repeats},
+    )
     print(f"\nwrote {RESULTS / 'bench_splat.json'}, {DOCS / 'splat_scaling.png'}, {DOCS / 'splat_body.png'}")
 
 

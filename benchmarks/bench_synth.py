@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 from common import DOCS, print_table, write_json
+
 from pghm.data.subject import check
 from pghm.data.synth import contact_sheet, generate, load_config
 

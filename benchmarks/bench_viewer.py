@@ -30,19 +30,19 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
-from bench_gl import body_scene, orbit_camera as body_orbit_camera, summary
+from bench_gl import body_scene, summary
+from bench_gl import orbit_camera as body_orbit_camera
 from common import print_table, setup_threads, write_json
+
 from pghm.data.open_motion import open_motion
 from pghm.gl import SpriteRenderer, driver_info, headless_context
 from pghm.io.avatar import load_avatar
-from pghm.render_video import AvatarDriver, frame_points, orbit_camera
+from pghm.render import AvatarDriver, frame_points, orbit_camera
 from pghm.splat import render
 from viewer.demo import development_avatar
-from viewer.settings import BACKFACE_MARGIN
+from viewer.settings import BACKFACE_MARGIN, DEFAULT_AVATAR
 
 ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_AVATAR = ROOT / "assets" / "avatar.pt"
 SCENE_VIEWPORT = (920, 800)
 """The default window (1280 x 800) minus the 360-pixel control panel."""
 ORBIT_SIZE = (1280, 720)
@@ -91,7 +91,7 @@ def bench_scrub(ctx, avatar, frames: int) -> list[dict]:
     stages = [{name: [] for name in names} for _ in modes]
     try:
         for k in range(frames + 2):
-            for (label, gaussians, view_dependent, scale), driver, renderer, record in zip(
+            for (_label, gaussians, view_dependent, scale), driver, renderer, record in zip(
                 modes, drivers, renderers, stages
             ):
                 start = time.perf_counter()
@@ -163,7 +163,7 @@ def bench_orbit(ctx, frames: int) -> list[dict]:
     try:
         # The options take turns view by view, so that load from other processes falls on all alike.
         for k, angle in enumerate(np.concatenate([angles[:2], angles])):
-            for (label, precision, scale, cull), renderer, record in zip(options, renderers, records):
+            for (_label, _precision, scale, cull), renderer, record in zip(options, renderers, records):
                 camera = body_orbit_camera(angle, scale)
                 start = time.perf_counter()
                 if cull:
@@ -187,15 +187,17 @@ def bench_orbit(ctx, frames: int) -> list[dict]:
         rows = []
         for (label, *_), record in zip(options, records):
             stats = summary(record["times"])
-            rows.append({
-                "option": label,
-                "gaussians_drawn": int(np.mean(record["drawn"])) if record["drawn"] else len(means),
-                "median_ms": stats["median_ms"],
-                "min_ms": stats["min_ms"],
-                "p90_ms": stats["p90_ms"],
-                "max_error": max(record["max"]),
-                "mean_error": float(np.mean(record["mean"])),
-            })
+            rows.append(
+                {
+                    "option": label,
+                    "gaussians_drawn": int(np.mean(record["drawn"])) if record["drawn"] else len(means),
+                    "median_ms": stats["median_ms"],
+                    "min_ms": stats["min_ms"],
+                    "p90_ms": stats["p90_ms"],
+                    "max_error": max(record["max"]),
+                    "mean_error": float(np.mean(record["mean"])),
+                }
+            )
         rows[-1]["load"] = load_average()
     finally:
         for renderer in (exact, *renderers):
@@ -240,16 +242,18 @@ def bench_accuracy(ctx, avatar) -> list[dict]:
                 errors.append(np.abs(image - truth).max(axis=-1))
         renderer.release()
         errors = np.stack(errors)
-        rows.append({
-            "projection": precision,
-            "images": len(errors),
-            "pixels": int(errors.size),
-            f"pixels_over_{FLIP:g}": int((errors > FLIP).sum()),
-            "pixels_over_1e-4": int((errors > 1e-4).sum()),
-            "max_error": float(errors.max()),
-            "mean_error": float(errors.mean()),
-            "render_median_ms": float(np.median(times)),
-        })
+        rows.append(
+            {
+                "projection": precision,
+                "images": len(errors),
+                "pixels": int(errors.size),
+                f"pixels_over_{FLIP:g}": int((errors > FLIP).sum()),
+                "pixels_over_1e-4": int((errors > 1e-4).sum()),
+                "max_error": float(errors.max()),
+                "mean_error": float(errors.mean()),
+                "render_median_ms": float(np.median(times)),
+            }
+        )
     return rows
 
 

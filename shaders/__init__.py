@@ -3,26 +3,58 @@
 Each shader is one ``<name>.glsl`` file beginning with ``#version 330 core``. Constants
 shared with the CPU splatter (``NEAR_PLANE``, ``ALPHA_MIN``, ...) are not written in the
 files: :func:`source` inserts them as ``#define`` lines, so Python stays their only source.
+
+Precision. The Gaussian sprite shaders (``gaussian_sprite.vert.glsl`` and
+``gaussian_sprite.frag.glsl``) run in float32 or float64 from one source: the quantities whose
+precision is chosen are declared with the macro types ``real``, ``real2``, ``real3``,
+``real4`` and ``realmat4``, converted explicitly where they meet float. ``source(name,
+precision=...)`` defines the types (:data:`PRECISIONS`): "float" as ``float``, ``vec2``, ...
+under ``#version 330 core``, where the conversions are identities; "double" as ``double``,
+``dvec2``, ... under ``#version 400 core`` (double arithmetic is core in OpenGL 4.0),
+plus ``#define PGHM_FP64 1`` for code that must differ (``#ifdef PGHM_FP64``).
 """
 
 from __future__ import annotations
 
 from importlib import resources
+from typing import Literal
+
+Precision = Literal["float", "double"]
+
+PRECISIONS: dict[str, tuple[str, dict[str, str]]] = {
+    "float": (
+        "#version 330 core",
+        {"real": "float", "real2": "vec2", "real3": "vec3", "real4": "vec4", "realmat4": "mat4"},
+    ),
+    "double": (
+        "#version 400 core",
+        {"PGHM_FP64": "1", "real": "double", "real2": "dvec2", "real3": "dvec3", "real4": "dvec4", "realmat4": "dmat4"},
+    ),
+}
+"""Precision -> (the ``#version`` line, the ``#define`` lines of its macro types)."""
 
 
-def source(name: str, defines: dict[str, int | float] | None = None) -> str:
+def source(name: str, defines: dict[str, int | float] | None = None, precision: Precision | None = None) -> str:
     """The text of ``shaders/<name>.glsl`` with ``#define NAME value`` lines after ``#version``.
 
     Floats are written with ``repr`` (round-trip exact, e.g. ``0.00392156862745098``), so
     the shader rounds each constant to float32 exactly as a float32 tensor op would.
+    ``precision`` ("float" or "double", see the module docstring) replaces the ``#version``
+    line and defines the ``real`` types first, for shaders written with them.
     """
     text = resources.files(__package__).joinpath(f"{name}.glsl").read_text(encoding="utf-8")
-    if not defines:
+    if not defines and precision is None:
         return text
     version, _, body = text.partition("\n")
     if not version.startswith("#version"):
         raise ValueError(f"shader {name!r} must begin with a #version line")
-    lines = [f"#define {key} {_glsl_literal(value)}" for key, value in defines.items()]
+    lines = []
+    if precision is not None:
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be 'float' or 'double', got {precision!r}")
+        version, types = PRECISIONS[precision]
+        lines += [f"#define {key} {value}" for key, value in types.items()]
+    lines += [f"#define {key} {_glsl_literal(value)}" for key, value in (defines or {}).items()]
     # '#line 2' keeps the compiler's line numbers equal to the file's.
     return "\n".join([version, *lines, "#line 2", body])
 

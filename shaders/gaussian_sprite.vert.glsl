@@ -4,18 +4,29 @@
 //   t = R mu + T;  u = fx t.x / t.z + cx,  v = fy t.y / t.z + cy
 //   cov2d = s^2 J J^T + COV_DILATION I,  J = [[fx/z, 0, -fx x'/z^2], [0, fy/z, -fy y'/z^2]]
 //   x' = clamp(t.x / t.z, -FRUSTUM_CLAMP W / (2 fx), +FRUSTUM_CLAMP W / (2 fx)) t.z  (J only)
-// Injected defines: NEAR_PLANE, COV_DILATION, ALPHA_MIN, FRUSTUM_CLAMP, TEXTURE_WIDTH.
+// Injected defines: NEAR_PLANE, COV_DILATION, ALPHA_MIN, FRUSTUM_CLAMP, TEXTURE_WIDTH, and the
+// precision types real, real2, real3, real4, realmat4 (shaders.source(..., precision=...)).
+//
+// Precision. The projection, t through the conic, is computed in `real`: float (#version
+// 330 core) or double (#version 400 core: OpenGL 4.0 / GL_ARB_gpu_shader_fp64), the latter
+// as the CPU splatter computes it (float64 per Gaussian). In float the screen mean loses
+// ~ulp(u) = 6e-5 px at u ~ 1000 px, which moves alpha near the 1/255 cut-off by ~6e-5
+// relative and flips rare (pixel, Gaussian) pairs (up to 3.9e-3 in one pixel); in double
+// that error is gone and the fragment shader's offset d is exact before it is rounded to
+// float. The conversions to and from `real` below are identities in float. In double the
+// injected defines are float literals widened to double (e.g. 0.3 -> 0.30000001192), 4e-8
+// relative from the splatter's doubles: far below the float32 rounding double removes.
 
 uniform sampler2D mean_scale;     // texel per Gaussian: (mu.x, mu.y, mu.z, s)
 uniform sampler2D color_opacity;  // texel per Gaussian: (r, g, b, o)
 uniform sampler2D draw_order;     // texel k: .r = index of the k-th Gaussian front to back
-uniform mat4 world_to_camera;
-uniform vec2 focal;               // (fx, fy) pixels
-uniform vec2 principal;           // (cx, cy) pixels
+uniform realmat4 world_to_camera;
+uniform real2 focal;              // (fx, fy) pixels
+uniform real2 principal;          // (cx, cy) pixels
 uniform vec2 image_size;          // (W, H) pixels
 
-flat out vec2 centre;             // (u, v): pixel coordinates, row 0 at the top
-flat out vec3 conic;              // inverse(cov2d) as (a, b, c) of [[a, b], [b, c]]
+flat out real2 centre;            // (u, v): pixel coordinates, row 0 at the top
+flat out vec3 conic;              // inverse(cov2d) as (a, b, c) of [[a, b], [b, c]], rounded to float once
 flat out vec4 color_alpha;        // (r, g, b, o)
 flat out float view_depth;        // t.z
 
@@ -26,7 +37,7 @@ ivec2 texel(int i) {
 void cull() {
     // All four corners on one point outside the clip volume: no fragment is generated.
     gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
-    centre = vec2(0.0);
+    centre = real2(0.0);
     conic = vec3(0.0);
     color_alpha = vec4(0.0);
     view_depth = 0.0;
@@ -36,44 +47,45 @@ void main() {
     int index = int(texelFetch(draw_order, texel(gl_InstanceID), 0).r);
     vec4 ms = texelFetch(mean_scale, texel(index), 0);
     vec4 co = texelFetch(color_opacity, texel(index), 0);
-    vec3 t = (world_to_camera * vec4(ms.xyz, 1.0)).xyz;
+    real3 t = (world_to_camera * real4(real3(ms.xyz), 1.0)).xyz;
     // o < ALPHA_MIN: alpha = o exp(-q/2) never reaches ALPHA_MIN, so the Gaussian is invisible.
     if (t.z <= NEAR_PLANE || co.a < ALPHA_MIN) {
         cull();
         return;
     }
 
-    vec2 mean2d = focal * t.xy / t.z + principal;
-    vec2 limit = FRUSTUM_CLAMP * image_size / (2.0 * focal);
-    vec2 tc = clamp(t.xy / t.z, -limit, limit) * t.z;
+    real2 mean2d = focal * t.xy / t.z + principal;
+    real2 limit = FRUSTUM_CLAMP * real2(image_size) / (2.0 * focal);
+    real2 tc = clamp(t.xy / t.z, -limit, limit) * t.z;
     // J's two non-zero entries per row: (fx/z, -fx x'/z^2) and (fy/z, -fy y'/z^2).
-    vec2 j_diag = focal / t.z;
-    vec2 j_last = -focal * tc / (t.z * t.z);
-    float s2 = ms.w * ms.w;
-    float a = s2 * (j_diag.x * j_diag.x + j_last.x * j_last.x) + COV_DILATION;
-    float b = s2 * (j_last.x * j_last.y);
-    float c = s2 * (j_diag.y * j_diag.y + j_last.y * j_last.y) + COV_DILATION;
-    float det = a * c - b * b;
+    real2 j_diag = focal / t.z;
+    real2 j_last = -focal * tc / (t.z * t.z);
+    real s2 = real(ms.w) * real(ms.w);
+    real a = s2 * (j_diag.x * j_diag.x + j_last.x * j_last.x) + COV_DILATION;
+    real b = s2 * (j_last.x * j_last.y);
+    real c = s2 * (j_diag.y * j_diag.y + j_last.y * j_last.y) + COV_DILATION;
+    real det = a * c - b * b;
 
     // alpha >= ALPHA_MIN  <=>  d^T conic d <= k = 2 ln(o / ALPHA_MIN): the ellipse
     // { L w sqrt(k) : |w| <= 1 } with cov2d = L L^T (Cholesky). The unit square [-1, 1]^2
     // mapped by L sqrt(k) is a parallelogram circumscribing it with the least area
     // (4 k sqrt(det)), no eigen-decomposition needed. The 1.001 and 1e-3 margins keep
     // pixel centres on the boundary inside despite float rounding; the fragment shader
-    // applies the exact test.
+    // applies the exact test. The quad only has to contain the footprint, so it is built
+    // in float in either precision.
     float k = 2.0 * log(co.a / ALPHA_MIN);
-    float l00 = sqrt(a);
-    float l10 = b / l00;
-    float l11 = sqrt(max(c - l10 * l10, 0.0));
+    float l00 = sqrt(float(a));
+    float l10 = float(b) / l00;
+    float l11 = sqrt(max(float(c) - l10 * l10, 0.0));
     vec2 corner = vec2(gl_VertexID & 1, gl_VertexID >> 1) * 2.0 - 1.0;
     vec2 w = corner * (sqrt(k) * 1.001 + 1e-3);
-    vec2 pixel = mean2d + vec2(l00 * w.x, l10 * w.x + l11 * w.y);
+    vec2 pixel = vec2(mean2d) + vec2(l00 * w.x, l10 * w.x + l11 * w.y);
 
     // No y flip: GL window row r holds image row r, so the read-back buffer (bottom row
     // first) is the image top row first, and gl_FragCoord.xy is the spec's pixel centre.
     gl_Position = vec4(2.0 * pixel / image_size - 1.0, 0.0, 1.0);
     centre = mean2d;
-    conic = vec3(c, -b, a) / det;
+    conic = vec3(real3(c, -b, a) / det);
     color_alpha = co;
-    view_depth = t.z;
+    view_depth = float(t.z);
 }

@@ -5,6 +5,8 @@ from __future__ import annotations
 import pytest
 import torch
 
+from pghm.model import ModelConfig
+
 torch.set_num_threads(2)
 
 
@@ -38,6 +40,15 @@ def tiny_dataset(tmp_path_factory):
     generate(PRESETS["tiny"], seed=0, out=out, workers=1, progress=False)
     return out
 
+
+SMALL_MODEL = ModelConfig(
+    uv_resolution=64,
+    latent_channels=8,
+    encoder_channels=(8, 12, 16, 24),
+    decoder_channels=(16, 12, 8),
+    condition_channels=(4, 4, 8, 8),
+)
+"""A small network on a 64 x 64 atlas (~3k Gaussians): every branch, fast on 2 cores."""
 
 TINY_MODEL = dict(
     uv_resolution=32,

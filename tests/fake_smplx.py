@@ -25,8 +25,8 @@ def write_fake_smplx(path: Path, rings: int = 24, segments: int = 16, seed: int 
     heights = np.linspace(-0.9, 0.9, rings)
     angles = np.arange(segments + 1) / segments * 2 * np.pi  # the last column duplicates the first
     vertices, uv = [], []
-    for r, y in enumerate(heights):
-        for s, a in enumerate(angles[:-1]):
+    for y in heights:
+        for a in angles[:-1]:
             vertices.append([0.15 * np.cos(a), y, 0.15 * np.sin(a)])
     for r in range(rings):
         for s in range(segments + 1):

@@ -41,7 +41,9 @@ def closest_point_on_triangles(p: torch.Tensor, a: torch.Tensor, b: torch.Tensor
     return result
 
 
-def distance_to_mesh(points: torch.Tensor, vertices: torch.Tensor, faces: torch.Tensor, voxel: float = 0.01) -> torch.Tensor:
+def distance_to_mesh(
+    points: torch.Tensor, vertices: torch.Tensor, faces: torch.Tensor, voxel: float = 0.01
+) -> torch.Tensor:
     """(N,) distance from each point to the nearest triangle whose bounding box holds the point's voxel.
 
     Triangles are binned by every voxel (edge ``voxel`` metres) their bounding box touches;

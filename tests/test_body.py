@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-
 from geometry import rodrigues
+
 from pghm.body import BodyPose, PoseError, lbs
 from pghm.body.anny_backend import ANNY_TO_WORLD
 from pghm.body.model import CANONICAL_JOINTS

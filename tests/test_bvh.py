@@ -10,38 +10,19 @@ import numpy as np
 import pytest
 import roma
 import torch
+from geometry import rodrigues
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from geometry import rodrigues
 from pghm.data.bvh import MAX_BVH_BYTES, euler_to_matrices, load_bvh, parse_bvh
 from pghm.data.motion import MAX_FRAMES
 from pghm.errors import MotionFileError
 
-MOTION_DIR = Path("/work/shared/data/motion")
+MOTION_DIR = Path(__file__).resolve().parent.parent / "assets" / "motion"
 AXES = {"X": np.array([1.0, 0.0, 0.0]), "Y": np.array([0.0, 1.0, 0.0]), "Z": np.array([0.0, 0.0, 1.0])}
 
-SMALL = """HIERARCHY
-ROOT Hips
-{
-  OFFSET 0 0 0
-  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
-  JOINT Chest
-  {
-    OFFSET 0 10 0
-    CHANNELS 3 Zrotation Xrotation Yrotation
-    End Site
-    {
-      OFFSET 0 5 0
-    }
-  }
-}
-MOTION
-Frames: 2
-Frame Time: 0.04
-0 90 0 0 0 0 0 0 0
-1 91 2 90 0 0 0 30 0
-"""
+SMALL = (Path(__file__).parent / "data" / "two_bone.bvh").read_text()
+"""A two-bone clip (hips with translation, chest), two frames: the base of the malformed cases."""
 
 
 def test_reads_the_mixamo_clip():
@@ -73,7 +54,9 @@ def test_small_file_forward_kinematics():
     world = clip.global_rotations()
     # Frame 1: root Zrotation 90 turns the chest's +y offset to -x; the chest adds Xrotation 30.
     np.testing.assert_allclose(world[1, 0] @ [0, 10, 0], [-10, 0, 0], atol=1e-12)
-    np.testing.assert_allclose(world[1, 1], rodrigues(np.radians(90) * AXES["Z"]) @ rodrigues(np.radians(30) * AXES["X"]), atol=1e-12)
+    np.testing.assert_allclose(
+        world[1, 1], rodrigues(np.radians(90) * AXES["Z"]) @ rodrigues(np.radians(30) * AXES["X"]), atol=1e-12
+    )
 
 
 @pytest.mark.parametrize("name", ["mixamo_walk_69f.bvh", "mocapbank_455f.bvh"])
@@ -132,11 +115,17 @@ MALFORMED = {
     "nan value": (_replace(SMALL, "1 91 2 90", "1 nan 2 90"), "not a finite number"),
     "inf value": (_replace(SMALL, "1 91 2 90", "1 91 2 -inf"), "not a finite number"),
     "overflowing value": (_replace(SMALL, "1 91 2 90", "1 91 2 1e999"), "not a finite number"),
-    "unknown channel": (_replace(SMALL, "Zrotation Xrotation Yrotation\n  JOINT", "Zrotation Xrotation Wrotation\n  JOINT"), "unknown channel 'Wrotation'"),
+    "unknown channel": (
+        _replace(SMALL, "Zrotation Xrotation Yrotation\n  JOINT", "Zrotation Xrotation Wrotation\n  JOINT"),
+        "unknown channel 'Wrotation'",
+    ),
     "channel count too big": (_replace(SMALL, "CHANNELS 3", "CHANNELS 9"), "CHANNELS count"),
     "channel count mismatch": (_replace(SMALL, "CHANNELS 3", "CHANNELS 2"), "more channel names"),
     "too few channel names": (_replace(SMALL, "CHANNELS 3", "CHANNELS 4"), "lists only 3"),
-    "duplicate channel": (_replace(SMALL, "Zrotation Xrotation Yrotation\n  JOINT", "Zrotation Zrotation Yrotation\n  JOINT"), "listed twice"),
+    "duplicate channel": (
+        _replace(SMALL, "Zrotation Xrotation Yrotation\n  JOINT", "Zrotation Zrotation Yrotation\n  JOINT"),
+        "listed twice",
+    ),
     "missing close brace": (_replace(SMALL, "  }\n}\nMOTION", "  }\nMOTION"), "unbalanced braces"),
     "extra close brace": (_replace(SMALL, "}\nMOTION", "}\n}\nMOTION"), "unbalanced braces"),
     "missing open brace": (_replace(SMALL, "JOINT Chest\n  {", "JOINT Chest\n"), "expected '{' after JOINT Chest"),
@@ -147,7 +136,10 @@ MALFORMED = {
     "nameless joint": (_replace(SMALL, "JOINT Chest", "JOINT"), "JOINT without a name"),
     "unknown keyword": (_replace(SMALL, "OFFSET 0 10 0", "OFFSET 0 10 0\n    SCALE 2"), "unexpected 'SCALE'"),
     "two roots": (_replace(SMALL, "MOTION", "ROOT Other\n{\n OFFSET 0 0 0\n}\nMOTION"), "second ROOT"),
-    "channels in end site": (_replace(SMALL, "OFFSET 0 5 0", "OFFSET 0 5 0\n CHANNELS 1 Xrotation"), "End Site cannot have CHANNELS"),
+    "channels in end site": (
+        _replace(SMALL, "OFFSET 0 5 0", "OFFSET 0 5 0\n CHANNELS 1 Xrotation"),
+        "End Site cannot have CHANNELS",
+    ),
     "no root": (_replace(SMALL, "ROOT Hips", "JOINT Hips"), "expected ROOT"),
 }
 
@@ -222,7 +214,9 @@ def test_mutated_files_parse_or_raise_motion_file_error(data):
         if kind == "cut":
             del raw[position : position + data.draw(st.integers(1, 20))]
         elif kind == "insert":
-            raw[position:position] = data.draw(st.sampled_from([b"{", b"}", b" ", b"\n", b"nan", b"-", b"JOINT x\n", b"End Site", b"9" * 30]))
+            raw[position:position] = data.draw(
+                st.sampled_from([b"{", b"}", b" ", b"\n", b"nan", b"-", b"JOINT x\n", b"End Site", b"9" * 30])
+            )
         elif raw:
             raw[min(position, len(raw) - 1)] = data.draw(st.integers(0, 255))
     try:

@@ -11,8 +11,21 @@ import torch
 
 from pghm.io.avatar import load_avatar
 
-ARGS = ["--steps", "3", "--shards", "2", "--images", "2", "--uv-resolution", "64", "--latent-channels", "8",
-        "--no-lpips", "--checkpoint-every", "0"]
+ARGS = [
+    "--steps",
+    "3",
+    "--shards",
+    "2",
+    "--images",
+    "2",
+    "--uv-resolution",
+    "64",
+    "--latent-channels",
+    "8",
+    "--no-lpips",
+    "--checkpoint-every",
+    "0",
+]
 
 
 def free_port() -> int:
@@ -30,13 +43,39 @@ def run(command: list[str]) -> None:
 def test_two_processes_equal_one(tiny_dataset, tmp_path):
     single, double = tmp_path / "single.pt", tmp_path / "double.pt"
     run([sys.executable, "-m", "pghm.cli.main", "train-prior", str(tiny_dataset), "--out", str(single), *ARGS])
-    run([
-        sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_port", str(free_port()),
-        "-m", "pghm.cli.main", "train-prior", str(tiny_dataset), "--out", str(double), *ARGS,
-    ])
+    run(
+        [
+            sys.executable,
+            "-m",
+            "torch.distributed.run",
+            "--nproc_per_node",
+            "2",
+            "--master_port",
+            str(free_port()),
+            "-m",
+            "pghm.cli.main",
+            "train-prior",
+            str(tiny_dataset),
+            "--out",
+            str(double),
+            *ARGS,
+        ]
+    )
     initial = tmp_path / "initial.pt"
-    run([sys.executable, "-m", "pghm.cli.main", "train-prior", str(tiny_dataset), "--out", str(initial),
-         *ARGS[:1], "0", *ARGS[2:]])
+    run(
+        [
+            sys.executable,
+            "-m",
+            "pghm.cli.main",
+            "train-prior",
+            str(tiny_dataset),
+            "--out",
+            str(initial),
+            *ARGS[:1],
+            "0",
+            *ARGS[2:],
+        ]
+    )
     one, two, start = (load_avatar(p).model.state_dict() for p in (single, double, initial))
     assert load_avatar(double).metadata["processes"] == 2 and load_avatar(single).metadata["processes"] == 1
     moved = 0

@@ -47,8 +47,9 @@ class PinholeCamera:
     world_to_camera: np.ndarray
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 1.0, 0.0])) -> np.ndarray:
-    """(4, 4) world_to_camera with OpenCV axes: z towards target, x right, y down (-up)."""
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -> np.ndarray:
+    """(4, 4) world_to_camera with OpenCV axes: z towards target, x right, y down (-up); up defaults to +y."""
+    up = np.array([0.0, 1.0, 0.0]) if up is None else up
     z = (target - eye) / np.linalg.norm(target - eye)
     x = np.cross(z, up)
     x /= np.linalg.norm(x)
@@ -142,8 +143,9 @@ def random_scene(rng, count, centre, spread, scale_range, opacity_range=(1e-3, 1
 def orbit_camera(rng, width=64, height=48) -> PinholeCamera:
     eye = np.array([rng.uniform(-1, 1), rng.uniform(-0.5, 0.5), -3.0])
     w2c = look_at(eye, np.array([0.0, 0.0, 0.0]) + rng.normal(0, 0.05, 3))
-    return PinholeCamera(fx=70.0, fy=65.0, cx=width / 2 + 1.7, cy=height / 2 - 2.3, width=width, height=height,
-                         world_to_camera=w2c)
+    return PinholeCamera(
+        fx=70.0, fy=65.0, cx=width / 2 + 1.7, cy=height / 2 - 2.3, width=width, height=height, world_to_camera=w2c
+    )
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -154,12 +156,18 @@ def test_random_scenes_match_reference(renderer, seed):
 
 
 SPLATTER_SCENES = {
-    "random": lambda rng: (random_scene(rng, 300, np.zeros(3), np.array([1.2, 0.9, 0.8]), (0.01, 0.15)),
-                           orbit_camera(rng)),
-    "overlap": lambda rng: (random_scene(rng, 400, np.zeros(3), np.array([0.15, 0.1, 0.3]), (0.02, 0.08), (0.3, 1.0)),
-                            orbit_camera(rng)),
-    "near": lambda rng: (random_scene(rng, 200, np.array([0.0, 0.0, 0.3]), np.array([0.4, 0.3, 0.29]), (0.002, 0.05)),
-                         PinholeCamera(60.0, 60.0, 32.0, 24.0, 64, 48, np.eye(4))),
+    "random": lambda rng: (
+        random_scene(rng, 300, np.zeros(3), np.array([1.2, 0.9, 0.8]), (0.01, 0.15)),
+        orbit_camera(rng),
+    ),
+    "overlap": lambda rng: (
+        random_scene(rng, 400, np.zeros(3), np.array([0.15, 0.1, 0.3]), (0.02, 0.08), (0.3, 1.0)),
+        orbit_camera(rng),
+    ),
+    "near": lambda rng: (
+        random_scene(rng, 200, np.array([0.0, 0.0, 0.3]), np.array([0.4, 0.3, 0.29]), (0.002, 0.05)),
+        PinholeCamera(60.0, 60.0, 32.0, 24.0, 64, 48, np.eye(4)),
+    ),
 }
 
 
@@ -169,8 +177,15 @@ def test_matches_cpu_splatter(renderer, name):
     from pghm.splat import Camera, render
 
     scene, pinhole = SPLATTER_SCENES[name](np.random.default_rng(20))
-    camera = Camera(pinhole.fx, pinhole.fy, pinhole.cx, pinhole.cy, pinhole.width, pinhole.height,
-                    torch.tensor(pinhole.world_to_camera, dtype=torch.float32))
+    camera = Camera(
+        pinhole.fx,
+        pinhole.fy,
+        pinhole.cx,
+        pinhole.cy,
+        pinhole.width,
+        pinhole.height,
+        torch.tensor(pinhole.world_to_camera, dtype=torch.float32),
+    )
     background = (0.8, 0.1, 0.5)
     expected = render(*(torch.from_numpy(a) for a in scene), camera, background=background)
     renderer.set_gaussians(*scene)
@@ -184,8 +199,9 @@ def test_near_plane(renderer):
     """Gaussians straddling z = NEAR_PLANE: just in front they cover the whole image."""
     rng = np.random.default_rng(3)
     cam = PinholeCamera(60.0, 60.0, 32.0, 24.0, 64, 48, np.eye(4))
-    near = random_scene(rng, 40, np.array([0.0, 0.0, NEAR_PLANE]), np.array([0.02, 0.02, 0.008]),
-                        (1e-4, 2e-3), (0.01, 0.3))
+    near = random_scene(
+        rng, 40, np.array([0.0, 0.0, NEAR_PLANE]), np.array([0.02, 0.02, 0.008]), (1e-4, 2e-3), (0.01, 0.3)
+    )
     far = random_scene(rng, 100, np.array([0.0, 0.0, 2.0]), np.array([1.0, 0.8, 0.5]), (0.02, 0.1))
     scene = [np.concatenate(pair) for pair in zip(near, far)]
     z = scene[0][:, 2]
@@ -219,8 +235,9 @@ def test_equal_depths_keep_index_order(renderer):
     count = 12
     rng = np.random.default_rng(6)
     means = np.column_stack([rng.normal(0, 0.05, count), rng.normal(0, 0.05, count), np.full(count, 2.0)])
-    scene = [a.astype(np.float32) for a in (means, np.full(count, 0.1), rng.uniform(0, 1, (count, 3)),
-                                              np.full(count, 0.9))]
+    scene = [
+        a.astype(np.float32) for a in (means, np.full(count, 0.1), rng.uniform(0, 1, (count, 3)), np.full(count, 0.9))
+    ]
     cam = PinholeCamera(60.0, 60.0, 20.0, 20.0, 40, 40, np.eye(4))
     forward = check_scene(renderer, scene, cam)
     backward = check_scene(renderer, [a[::-1].copy() for a in scene], cam)
@@ -230,8 +247,7 @@ def test_equal_depths_keep_index_order(renderer):
 def test_single_gaussian_by_hand(renderer):
     """One opaque Gaussian on a pixel centre: there alpha = ALPHA_MAX, C = 0.99 c + 0.01 bg."""
     cam = PinholeCamera(100.0, 100.0, 16.5, 10.5, 33, 21, np.eye(4))
-    renderer.set_gaussians(np.array([[0.0, 0.0, 2.0]]), np.array([0.05]), np.array([[1.0, 0.5, 0.0]]),
-                           np.array([1.0]))
+    renderer.set_gaussians(np.array([[0.0, 0.0, 2.0]]), np.array([0.05]), np.array([[1.0, 0.5, 0.0]]), np.array([1.0]))
     image = renderer.render(cam, background=(0.0, 0.0, 1.0))
     np.testing.assert_allclose(image.rgb[10, 16], [0.99, 0.495, 0.01], atol=1e-6)
     # sigma^2 = (100 * 0.05 / 2)^2 + 0.3 = 6.55 px^2; alpha at d = 3 px along x:
@@ -245,8 +261,10 @@ def test_footprint_is_exactly_alpha_min(renderer):
     for _ in range(12):
         z = rng.uniform(0.5, 2.0)
         mean = np.array([[rng.uniform(-1.6, 1.6) * 0.6 * z, rng.uniform(-1.6, 1.6) * 0.6 * z, z]])
-        scene = [np.asarray(a, np.float32) for a in (mean, [rng.uniform(0.02, 0.3) * z], [[1.0, 1.0, 1.0]],
-                                                 [np.exp(rng.uniform(np.log(0.005), 0.0))])]
+        scene = [
+            np.asarray(a, np.float32)
+            for a in (mean, [rng.uniform(0.02, 0.3) * z], [[1.0, 1.0, 1.0]], [np.exp(rng.uniform(np.log(0.005), 0.0))])
+        ]
         renderer.set_gaussians(*scene)
         alpha = renderer.render(cam).alpha
         _, expected = reference_render(*scene, cam, (0.0, 0.0, 0.0))
@@ -281,13 +299,22 @@ def test_screen_box_holds_every_sprite():
     """No pixel outside sprite_bounds has alpha > 0, and a compact scene gets a small box."""
     rng = np.random.default_rng(14)
     cam = PinholeCamera(50.0, 55.0, 30.0, 26.0, 60, 52, np.eye(4))
-    for centre, spread, scale in (((0.0, 0.0, 2.0), (2.5, 2.0, 1.0), (0.02, 0.4)),  # beyond the borders
-                                  ((0.0, 0.0, 0.2), (0.3, 0.3, 0.195), (0.001, 0.02)),  # near plane
-                                  ((0.3, -0.2, 3.0), (0.2, 0.2, 0.2), (0.01, 0.03))):  # compact
+    for centre, spread, scale in (
+        ((0.0, 0.0, 2.0), (2.5, 2.0, 1.0), (0.02, 0.4)),  # beyond the borders
+        ((0.0, 0.0, 0.2), (0.3, 0.3, 0.195), (0.001, 0.02)),  # near plane
+        ((0.3, -0.2, 3.0), (0.2, 0.2, 0.2), (0.01, 0.03)),
+    ):  # compact
         scene = random_scene(rng, 150, np.array(centre), np.array(spread), scale)
         _, alpha = reference_render(*scene, cam, (0.0, 0.0, 0.0))
-        box = sprite_bounds(scene[0], scene[1], scene[3], cam.world_to_camera, (cam.fx, cam.fy), (cam.cx, cam.cy),
-                            (cam.width, cam.height))
+        box = sprite_bounds(
+            scene[0],
+            scene[1],
+            scene[3],
+            cam.world_to_camera,
+            (cam.fx, cam.fy),
+            (cam.cx, cam.cy),
+            (cam.width, cam.height),
+        )
         inside = np.zeros_like(alpha, dtype=bool)
         x, y, w, h = box
         inside[y : y + h, x : x + w] = True

@@ -25,7 +25,7 @@ from pghm.body import load_body
 from pghm.data.open_motion import open_motion
 from pghm.gl import SpriteRenderer, headless_context
 from pghm.model import ModelConfig
-from pghm.render_video import AvatarDriver, frame_points, orbit_camera
+from pghm.render import AvatarDriver, frame_points, orbit_camera
 from pghm.splat import Camera, render
 from viewer.demo import development_avatar
 

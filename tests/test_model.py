@@ -6,19 +6,12 @@ import math
 
 import pytest
 import torch
+from conftest import SMALL_MODEL as SMALL
 
 from pghm.body import BodyPose
 from pghm.model import PGHM, ModelConfig, subject_geometry
 from pghm.model.evaluator import CachedEvaluator
 from pghm.uv.atlas import build_atlas
-
-SMALL = ModelConfig(
-    uv_resolution=64,
-    latent_channels=8,
-    encoder_channels=(8, 12, 16, 24),
-    decoder_channels=(16, 12, 8),
-    condition_channels=(4, 4, 8, 8),
-)
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +30,9 @@ def randomize_heads(model: PGHM, scale: float = 0.05) -> None:
 
 def random_pose(body, batch: int = 1, seed: int = 0) -> BodyPose:
     gen = torch.Generator().manual_seed(seed)
-    return BodyPose(torch.randn(batch, body.num_bones, 3, generator=gen) * 0.3, torch.randn(batch, 3, generator=gen) * 0.1)
+    return BodyPose(
+        torch.randn(batch, body.num_bones, 3, generator=gen) * 0.3, torch.randn(batch, 3, generator=gen) * 0.1
+    )
 
 
 def test_untrained_model_puts_gaussians_on_the_surface(body, geometry):
@@ -111,7 +106,12 @@ def test_cached_evaluation_equals_full_recompute(body, geometry, head):
         ("camera", identity_a, pose_a, cam_b),
         ("pose", identity_a, pose_b, cam_b),
         ("identity", identity_b, pose_b, cam_b),
-        ("same values, new tensors", identity_b.clone(), BodyPose(pose_b.rotations.clone(), pose_b.translation.clone()), cam_b.clone()),
+        (
+            "same values, new tensors",
+            identity_b.clone(),
+            BodyPose(pose_b.rotations.clone(), pose_b.translation.clone()),
+            cam_b.clone(),
+        ),
     ]
     ran = {}
     for label, identity, pose, camera in steps:
@@ -126,7 +126,10 @@ def test_cached_evaluation_equals_full_recompute(body, geometry, head):
 
     assert ran["nothing"] == {} and ran["same values, new tensors"] == {}
     if head == "multi":
-        assert ran["first"] == {k: 1 for k in ("unet_encoder", "static_decoder", "pose_encoder", "pose_decoder", "view_encoder", "view_decoder")}
+        assert ran["first"] == {
+            k: 1
+            for k in ("unet_encoder", "static_decoder", "pose_encoder", "pose_decoder", "view_encoder", "view_decoder")
+        }
         assert ran["camera"] == {"view_encoder": 1, "view_decoder": 1}
         assert ran["pose"] == {"pose_encoder": 1, "pose_decoder": 1, "view_encoder": 1, "view_decoder": 1}
         assert ran["identity"] == ran["first"]

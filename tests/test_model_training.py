@@ -3,20 +3,14 @@
 from __future__ import annotations
 
 import torch
+from conftest import SMALL_MODEL as SMALL
 
 from pghm.body import BodyPose
-from pghm.model import PGHM, ModelConfig, subject_geometry
+from pghm.model import PGHM, subject_geometry
 from pghm.splat import Camera, render
 from pghm.train.losses import objective
 from pghm.uv.atlas import build_atlas
 
-SMALL = ModelConfig(
-    uv_resolution=64,
-    latent_channels=8,
-    encoder_channels=(8, 12, 16, 24),
-    decoder_channels=(16, 12, 8),
-    condition_channels=(4, 4, 8, 8),
-)
 SIZE = 48
 
 
@@ -35,9 +29,7 @@ def target_views(geometry, pose, cameras):
 
     posed = posed_points(geometry.surface, geometry.transforms(pose))[0]
     scales = geometry.texel_length * 0.6
-    return [
-        render(posed, scales, colors, torch.ones(len(posed)), cam).rgb.permute(2, 0, 1) for cam in cameras
-    ]
+    return [render(posed, scales, colors, torch.ones(len(posed)), cam).rgb.permute(2, 0, 1) for cam in cameras]
 
 
 def test_loss_halves_within_a_few_dozen_steps(body):
@@ -45,8 +37,13 @@ def test_loss_halves_within_a_few_dozen_steps(body):
     geometry = subject_geometry(body, build_atlas(body, SMALL.uv_resolution))
     pose = BodyPose(torch.zeros(1, body.num_bones, 3), torch.zeros(1, 3))
     cameras = [
-        Camera.look_at(eye=(3.0 * torch.sin(torch.tensor(a)).item(), 0.0, 3.0 * torch.cos(torch.tensor(a)).item()),
-                       target=(0.0, 0.0, 0.0), fov_y_degrees=40.0, width=SIZE, height=SIZE)
+        Camera.look_at(
+            eye=(3.0 * torch.sin(torch.tensor(a)).item(), 0.0, 3.0 * torch.cos(torch.tensor(a)).item()),
+            target=(0.0, 0.0, 0.0),
+            fov_y_degrees=40.0,
+            width=SIZE,
+            height=SIZE,
+        )
         for a in (0.0, 2.1, 4.2)
     ]
     targets = torch.stack(target_views(geometry, pose, cameras))
@@ -56,12 +53,19 @@ def test_loss_halves_within_a_few_dozen_steps(body):
     centres = torch.stack([c.centre.float() for c in cameras])
     losses = []
     for _ in range(30):
-        out = model(model.decode_identity(0), geometry, BodyPose(pose.rotations.expand(3, -1, -1), pose.translation.expand(3, -1)), centres)
+        out = model(
+            model.decode_identity(0),
+            geometry,
+            BodyPose(pose.rotations.expand(3, -1, -1), pose.translation.expand(3, -1)),
+            centres,
+        )
         renders = {
-            name: torch.stack([
-                render(g.means[b], g.scales[b], g.colors[b], g.opacities[b], cam).rgb.permute(2, 0, 1)
-                for b, cam in enumerate(cameras)
-            ])
+            name: torch.stack(
+                [
+                    render(g.means[b], g.scales[b], g.colors[b], g.opacities[b], cam).rgb.permute(2, 0, 1)
+                    for b, cam in enumerate(cameras)
+                ]
+            )
             for name, g in (("static", out.static), ("dynamic", out.dynamic))
         }
         loss, _ = objective(renders["static"], renders["dynamic"], targets, out.regularizer)

@@ -11,7 +11,7 @@ from pghm.data.motion import Motion
 from pghm.data.procedural import procedural_motion
 from pghm.errors import EXIT_USER_ERROR
 
-WALK_BVH = Path("/work/shared/data/motion/mixamo_walk_69f.bvh")
+WALK_BVH = Path(__file__).resolve().parent.parent / "assets" / "motion" / "mixamo_walk_69f.bvh"
 
 
 def test_make_then_info(tmp_path, capsys, body):

@@ -133,7 +133,10 @@ def facing(joints: np.ndarray, body: BodyModel) -> np.ndarray:
 @pytest.fixture(scope="module")
 def anny_clips(body):
     """Every registered motion on Anny, short clips (generated once for the module)."""
-    return {name: procedural_motion(name, body, frames=48 if name != "stress" else 184, fps=FPS) for name in PROCEDURAL_MOTIONS}
+    return {
+        name: procedural_motion(name, body, frames=48 if name != "stress" else 184, fps=FPS)
+        for name in PROCEDURAL_MOTIONS
+    }
 
 
 def test_every_motion_is_a_valid_clip_for_the_body(body, anny_clips):

@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 import roma
 import torch
+from test_motion_procedural import StickBody, angle_deg, facing, posed_joints, posed_vertices
 
 from pghm.data.bvh import load_bvh
 from pghm.data.motion import Motion
 from pghm.data.retarget import clip_facing, detect_rig, detect_units, import_bvh, resample, retarget_bvh
 from pghm.errors import MotionFileError
-from test_motion_procedural import StickBody, angle_deg, facing, posed_joints, posed_vertices
 
-MOTION_DIR = Path("/work/shared/data/motion")
+MOTION_DIR = Path(__file__).resolve().parent.parent / "assets" / "motion"
 CLIPS = ("mixamo_walk_69f.bvh", "mocapbank_455f.bvh")
 
 # Bones compared: (name, canonical start, canonical end) and the clip joints they correspond
@@ -25,18 +25,39 @@ CLIPS = ("mixamo_walk_69f.bvh", "mocapbank_455f.bvh")
 BONES = [
     (f"{side} {bone}", f"{side}_{a}", f"{side}_{b}")
     for side in ("left", "right")
-    for bone, a, b in (("upper arm", "shoulder", "elbow"), ("forearm", "elbow", "wrist"), ("thigh", "hip", "knee"), ("shin", "knee", "ankle"))
+    for bone, a, b in (
+        ("upper arm", "shoulder", "elbow"),
+        ("forearm", "elbow", "wrist"),
+        ("thigh", "hip", "knee"),
+        ("shin", "knee", "ankle"),
+    )
 ] + [("spine", "pelvis", "neck")]
+MIXAMO_SUFFIXES = (
+    ("shoulder", "Arm"),
+    ("elbow", "ForeArm"),
+    ("wrist", "Hand"),
+    ("hip", "UpLeg"),
+    ("knee", "Leg"),
+    ("ankle", "Foot"),
+)
+MOCAPBANK_SUFFIXES = (
+    ("shoulder", "Shoulder"),
+    ("elbow", "Elbow"),
+    ("wrist", "Wrist"),
+    ("hip", "Hip"),
+    ("knee", "Knee"),
+    ("ankle", "Ankle"),
+)
 CLIP_JOINTS = {
     "mixamo_walk_69f.bvh": {
         **{f"{s}_{j}": f"mixamorig:{S}{n}" for s, S in (("left", "Left"), ("right", "Right"))
-           for j, n in (("shoulder", "Arm"), ("elbow", "ForeArm"), ("wrist", "Hand"), ("hip", "UpLeg"), ("knee", "Leg"), ("ankle", "Foot"))},
+           for j, n in MIXAMO_SUFFIXES},
         "pelvis": "mixamorig:Hips",
         "neck": "mixamorig:Neck",
     },
     "mocapbank_455f.bvh": {
         **{f"{s}_{j}": f"{S}{n}" for s, S in (("left", "Left"), ("right", "Right"))
-           for j, n in (("shoulder", "Shoulder"), ("elbow", "Elbow"), ("wrist", "Wrist"), ("hip", "Hip"), ("knee", "Knee"), ("ankle", "Ankle"))},
+           for j, n in MOCAPBANK_SUFFIXES},
         "pelvis": "Hips",
         "neck": "Neck",
     },
@@ -179,7 +200,12 @@ def test_motion_file_round_trip(tmp_path, anny_motions):
     loaded = Motion.load(tmp_path / "clip.npz")
     np.testing.assert_array_equal(loaded.rotations, motion.rotations)
     np.testing.assert_array_equal(loaded.translation, motion.translation)
-    assert (loaded.fps, loaded.body, loaded.bone_names, loaded.source) == (motion.fps, motion.body, motion.bone_names, motion.source)
+    assert (loaded.fps, loaded.body, loaded.bone_names, loaded.source) == (
+        motion.fps,
+        motion.body,
+        motion.bone_names,
+        motion.source,
+    )
     assert loaded.source == "bvh:mocapbank_455f.bvh (rig mocapbank, cm)"
 
 
@@ -197,7 +223,9 @@ def turned_clip(clip, turn: np.ndarray):
         values[:, [col for col, _ in rotation]] = roma.rotmat_to_euler(order, turned, degrees=True).numpy()
         position = [(col, "XYZ".index(ch[0])) for col, ch in zip(columns, channels) if ch.endswith("position")]
         if position:
-            values[:, [col for col, _ in position]] = (clip.root_positions() @ turn.T)[:, [axis for _, axis in position]]
+            values[:, [col for col, _ in position]] = (clip.root_positions() @ turn.T)[
+                :, [axis for _, axis in position]
+            ]
     return replace(clip, offsets=clip.offsets @ turn.T, values=values)
 
 
@@ -231,7 +259,9 @@ def test_units_are_detected_and_cancel_out(stick):
 
 
 def test_rig_detection():
-    mixamo = ["Hips", "Spine", "Neck", "Head"] + [f"{s}{j}" for s in ("Left", "Right") for j in ("Arm", "ForeArm", "Hand", "UpLeg", "Leg", "Foot")]
+    mixamo = ["Hips", "Spine", "Neck", "Head"] + [
+        f"{s}{j}" for s in ("Left", "Right") for j in ("Arm", "ForeArm", "Hand", "UpLeg", "Leg", "Foot")
+    ]
     assert detect_rig(mixamo)[0] == "mixamo"
     assert detect_rig([f"mixamorig1:{n}" for n in mixamo])[0] == "mixamo"
     name, joints = detect_rig(load_bvh(MOTION_DIR / "mocapbank_455f.bvh").names)

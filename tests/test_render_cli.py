@@ -17,22 +17,15 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 import torch
+from conftest import SMALL_MODEL as SMALL
 
 from pghm.cli.main import main
 from pghm.io.avatar import save_avatar
-from pghm.model import ModelConfig
-from pghm.render_video import RenderJob, frame_points, orbit_camera, plan_frames, render_video
+from pghm.render import RenderJob, frame_points, orbit_camera, plan_frames, render_video
 from viewer.demo import development_avatar
 
 pytestmark = pytest.mark.gl
 
-SMALL = ModelConfig(
-    uv_resolution=64,
-    latent_channels=8,
-    encoder_channels=(8, 12, 16, 24),
-    decoder_channels=(16, 12, 8),
-    condition_channels=(4, 4, 8, 8),
-)
 SIZE = "160x120"
 MP4_MEAN_LEVELS = 3.0
 """H.264 at imageio-ffmpeg quality 8: mean abs difference to the lossless frames, in 8-bit levels."""
@@ -79,22 +72,40 @@ def test_gl_and_cpu_backends_write_matching_png_sequences(avatar_file, tmp_path)
 
 
 def test_mp4_is_written_and_readable(avatar_file, tmp_path, capsys):
+    def squat(out) -> list[str]:
+        options = ["--motion", "squat", "--frames", "6", "--fps", "24", "--size", SIZE]
+        return ["render", str(avatar_file), *options, "--out", str(out)]
+
     out = tmp_path / "clip.mp4"
-    assert main(["render", str(avatar_file), "--motion", "squat", "--frames", "6", "--fps", "24",
-                 "--size", SIZE, "--out", str(out)]) == 0
+    assert main(squat(out)) == 0
     assert f"wrote {out}" in capsys.readouterr().out
     video = read_mp4(out)
     assert len(video) == 6 and video[0].shape == (120, 160, 3)
-    assert main(["render", str(avatar_file), "--motion", "squat", "--frames", "6", "--fps", "24",
-                 "--size", SIZE, "--out", str(tmp_path / "png")]) == 0
+    assert main(squat(tmp_path / "png")) == 0
     for encoded, lossless in zip(video, frames_of(tmp_path / "png")):
         assert np.abs(encoded.astype(float) - lossless).mean() < MP4_MEAN_LEVELS
 
 
 def test_single_png_and_options(prior_file, tmp_path):
     out = tmp_path / "still.png"
-    assert main(["render", str(prior_file), "--identity", "2", "--static", "--background", "0,0,0",
-                 "--size", SIZE, "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "render",
+                str(prior_file),
+                "--identity",
+                "2",
+                "--static",
+                "--background",
+                "0,0,0",
+                "--size",
+                SIZE,
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     image = iio.imread(out)
     assert image.shape == (120, 160, 3) and (image[0, 0] == 0).all()
     assert (image.max(axis=-1) > 40).mean() > 0.05, "the body is in the frame"
@@ -130,7 +141,9 @@ def test_user_errors_are_one_line_with_status_2(avatar_file, tmp_path, capsys):
     code = "import sys; from pghm.cli.main import main; sys.exit(main(sys.argv[1:]))"
     result = subprocess.run(
         [sys.executable, "-c", code, "render", str(bad), "--out", str(tmp_path / "a.png")],
-        capture_output=True, text=True, timeout=120,
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert result.returncode == 2 and len(lines) == 1 and str(bad) in lines[0], result.stderr
@@ -157,13 +170,13 @@ def test_render_video_reports_backend_and_stage_times(avatar_file, tmp_path):
 
 
 def test_auto_backend_falls_back_to_the_cpu_without_egl(avatar_file, tmp_path, monkeypatch):
-    import pghm.render_video as render_video_module
+    import pghm.render.frames as frames_module
     from pghm.errors import DisplayError
 
     def no_egl():
         raise DisplayError("cannot create a headless OpenGL 3.3 context through EGL (test)")
 
-    monkeypatch.setattr(render_video_module, "GLFrames", no_egl)
+    monkeypatch.setattr(frames_module, "GLFrames", no_egl)  # where frame_renderer looks it up
     notes = []
     summary = render_video(RenderJob(avatar=avatar_file, out=tmp_path / "s.png", size=(96, 64)), log=notes.append)
     assert summary.backend == "cpu" and len(notes) == 1 and "CPU splatter" in notes[0]

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-
 from fake_smplx import SMPLX_PARENTS, write_fake_smplx
 from geometry import distance_to_mesh
+
 from pghm.body import BodyPose, load_body
 from pghm.body.smplx_backend import SMPLXBody
 from pghm.errors import PghmError
@@ -45,7 +45,9 @@ def test_produces_the_same_kind_of_maps(smplx_body):
     # float32 barycentrics sum to one within 1e-7.
     assert distance_to_mesh(surface.positions, rest.vertices, smplx_body.faces).max() < 1e-6
     gen = torch.Generator().manual_seed(0)
-    pose = BodyPose(torch.randn(1, 55, 3, generator=gen, dtype=torch.float64) * 0.4, torch.zeros(1, 3, dtype=torch.float64))
+    pose = BodyPose(
+        torch.randn(1, 55, 3, generator=gen, dtype=torch.float64) * 0.4, torch.zeros(1, 3, dtype=torch.float64)
+    )
     transforms = smplx_body.bone_transforms(pose, rest.joints)
     texels = posed_points(surface, transforms)
     vertices = smplx_body.posed_vertices(pose, rest)

@@ -14,8 +14,7 @@ from dataclasses import dataclass
 import pytest
 import torch
 
-from pghm.splat import Camera, SplatSettings, render
-from pghm.splat import native
+from pghm.splat import Camera, SplatSettings, native, render
 
 BACKENDS = ("native", "torch")
 
@@ -44,8 +43,16 @@ class Scene:
     background: tuple[float, float, float]
 
     def render(self, backend: str, settings: SplatSettings | None = None):
-        return render(self.means, self.scales, self.colors, self.opacities, self.camera, self.background,
-                      backend=backend, settings=settings)
+        return render(
+            self.means,
+            self.scales,
+            self.colors,
+            self.opacities,
+            self.camera,
+            self.background,
+            backend=backend,
+            settings=settings,
+        )
 
 
 def brute_force(scene: Scene) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -199,8 +206,15 @@ def test_hand_computed_image(backend):
     pose = torch.eye(4)
     # s = 0.1 at depth 1 with fx = fy = 10: s^2 fx^2 / z^2 = 1, plus the 0.3 dilation.
     camera = Camera(10.0, 10.0, 1.5, 1.5, 3, 3, pose)
-    out = render(torch.tensor([[0.0, 0.0, 1.0]]), torch.tensor([0.1]), torch.tensor([[1.0, 0.0, 0.0]]),
-                 torch.tensor([0.5]), camera, background=(0.0, 0.0, 1.0), backend=backend)
+    out = render(
+        torch.tensor([[0.0, 0.0, 1.0]]),
+        torch.tensor([0.1]),
+        torch.tensor([[1.0, 0.0, 0.0]]),
+        torch.tensor([0.5]),
+        camera,
+        background=(0.0, 0.0, 1.0),
+        backend=backend,
+    )
     centre, edge, corner = 0.5, 0.5 * math.exp(-0.5 / 1.3), 0.5 * math.exp(-1.0 / 1.3)
     expected_alpha = torch.tensor([[corner, edge, corner], [edge, centre, edge], [corner, edge, corner]])
     torch.testing.assert_close(out.alpha, expected_alpha, rtol=0, atol=1e-7)  # float32 rounding only
@@ -230,8 +244,15 @@ def test_footprint_is_the_alpha_threshold_not_three_sigma(backend):
     sigma_px = 2.2  # pixel centres 7 px = 3.18 sigma out: inside the exact footprint, outside 3 sigma
     scale = math.sqrt(sigma_px**2 - 0.3) / 100.0  # cov2d = sigma_px^2 on the axis
     for opacity in (1.0, 0.02):
-        out = render(torch.tensor([[0.0, 0.0, 1.0]]), torch.tensor([scale]), torch.ones(1, 3), torch.tensor([opacity]),
-                     camera, background=(0.0, 0.0, 0.0), backend=backend)
+        out = render(
+            torch.tensor([[0.0, 0.0, 1.0]]),
+            torch.tensor([scale]),
+            torch.ones(1, 3),
+            torch.tensor([opacity]),
+            camera,
+            background=(0.0, 0.0, 0.0),
+            backend=backend,
+        )
         offsets = torch.arange(width) + 0.5 - width / 2
         raw = opacity * torch.exp(-0.5 * offsets**2 / sigma_px**2)
         expected = torch.where(raw >= 1 / 255, raw.clamp(max=0.99), torch.zeros_like(raw))
@@ -326,8 +347,9 @@ def test_float32_gradients_match_float64(backend):
     for seed in range(4):
         scene64 = small_scene(seed, num_gaussians=6)
         camera = scene64.camera
-        camera32 = Camera(camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height,
-                          camera.world_to_camera.float())
+        camera32 = Camera(
+            camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height, camera.world_to_camera.float()
+        )
         gaussians32 = (scene64.means.float(), scene64.scales.float(), scene64.colors.float(), scene64.opacities.float())
         scene32 = Scene(*gaussians32, camera32, scene64.background)
         _, grads32 = gradients(scene32, backend, seed)
@@ -392,7 +414,9 @@ def test_approximations_change_the_image_but_the_default_is_exact():
     exact = scene.render("native").rgb
     assert torch.equal(exact, scene.render("native", SplatSettings()).rgb)
     approximations = (
-        SplatSettings(alpha_cutoff=8 / 255), SplatSettings(transmittance_stop=0.05), SplatSettings(footprint_sigmas=1.5)
+        SplatSettings(alpha_cutoff=8 / 255),
+        SplatSettings(transmittance_stop=0.05),
+        SplatSettings(footprint_sigmas=1.5),
     )
     for settings in approximations:
         assert not torch.equal(exact, scene.render("native", settings).rgb), settings

@@ -11,8 +11,7 @@ import torch
 
 from pghm.cli.main import main as pghm_main
 from pghm.errors import PghmError
-from pghm.splat import Camera, SplatSettings, render
-from pghm.splat import _render, native
+from pghm.splat import Camera, SplatSettings, _render, native, render
 from pghm.splat.benchmark import SWEEP, body_scene, pareto_front, run_sweep
 
 
@@ -25,13 +24,17 @@ def tiny_gaussians(num_gaussians: int = 6, seed: int = 0):
 
 
 def test_look_at_orientation_and_centre():
-    camera = Camera.look_at(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y_degrees=60.0,
-                            width=64, height=48)
+    camera = Camera.look_at(
+        eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_y_degrees=60.0, width=64, height=48
+    )
     torch.testing.assert_close(camera.centre, torch.tensor([0.0, 0.0, 3.0]), atol=1e-6, rtol=0)
     pose = camera.world_to_camera.double()
     # World up is image up (v decreases), world +x is image right seen from +z; the target is straight ahead.
-    for point, check in (((0.0, 0.5, 0.0), lambda u, v: v < camera.cy), ((0.5, 0.0, 0.0), lambda u, v: u > camera.cx),
-                         ((0.0, 0.0, 0.0), lambda u, v: abs(u - camera.cx) < 1e-6 and abs(v - camera.cy) < 1e-6)):
+    for point, check in (
+        ((0.0, 0.5, 0.0), lambda u, v: v < camera.cy),
+        ((0.5, 0.0, 0.0), lambda u, v: u > camera.cx),
+        ((0.0, 0.0, 0.0), lambda u, v: abs(u - camera.cx) < 1e-6 and abs(v - camera.cy) < 1e-6),
+    ):
         t = pose[:3, :3] @ torch.tensor(point, dtype=torch.float64) + pose[:3, 3]
         assert t[2] > 0
         assert check(camera.fx * t[0] / t[2] + camera.cx, camera.fy * t[1] / t[2] + camera.cy), point
@@ -96,8 +99,10 @@ def test_background_as_tensor_and_empty_scene():
     assert out.rgb.shape == (32, 32, 3)
     assert torch.equal(out.rgb, background.expand(32, 32, 3))
     assert torch.equal(out.alpha, torch.zeros(32, 32))
-    assert torch.equal(render(means, scales, colors, opacities, camera, background=background).rgb,
-                       render(means, scales, colors, opacities, camera, background=(0.1, 0.2, 0.3)).rgb)
+    assert torch.equal(
+        render(means, scales, colors, opacities, camera, background=background).rgb,
+        render(means, scales, colors, opacities, camera, background=(0.1, 0.2, 0.3)).rgb,
+    )
 
 
 @pytest.mark.parametrize("backend", ["native", "torch"])
@@ -112,8 +117,9 @@ def test_batched_cameras_and_gaussians_equal_single_renders(backend):
     for b in range(3):
         camera = Camera(float(fx[b]), float(fx[b]), 20.0, 15.0, 40, 30, poses[b])
         single = render(means, scales, colors, opacities, camera, backend=backend)
-        for got, want in zip((batched.rgb[b], batched.alpha[b], batched.depth[b]),
-                             (single.rgb, single.alpha, single.depth)):
+        for got, want in zip(
+            (batched.rgb[b], batched.alpha[b], batched.depth[b]), (single.rgb, single.alpha, single.depth)
+        ):
             # The native kernel composites each tile alone: bit-identical. The twin's float64
             # cumulative sum runs across the whole batch, which moves T by ~1e-16 before rounding.
             torch.testing.assert_close(got, want, rtol=0, atol=0 if backend == "native" else 1e-6)

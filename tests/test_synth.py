@@ -228,7 +228,8 @@ def test_wrinkles_follow_the_elbow_bend_and_leave_the_texture_alone(body, gl):
         # shading: identical, the folds never touch the texture.
         no_folds = np.zeros(a_bent.shape[1])
         np.testing.assert_array_equal(
-            draw(folded, bent, a_bent, mode="albedo"), draw(folded, bent, a_bent, mode="albedo", shader_amplitudes=no_folds)
+            draw(folded, bent, a_bent, mode="albedo"),
+            draw(folded, bent, a_bent, mode="albedo", shader_amplitudes=no_folds),
         )
         assert np.abs(draw(folded, bent, a_bent) - draw(folded, bent, a_bent, shader_amplitudes=no_folds)).max() > 40
     finally:
@@ -277,7 +278,9 @@ def test_dataset_cameras_and_exact_poses_reproduce_the_masks(tiny, body):
         translation = frame.translation_true[None].astype(np.float64)
         amplitudes = wrinkle_amplitudes(rotations, body.joint_map)
         positions, _ = pose_clothed_body(body, clothed, rotations, translation, amplitudes)
-        uv = project(positions[0].astype(np.float64), frame.K.astype(np.float64), frame.world_to_camera.astype(np.float64))
+        uv = project(
+            positions[0].astype(np.float64), frame.K.astype(np.float64), frame.world_to_camera.astype(np.float64)
+        )
         expected = pixel_bbox_of_points(uv)
         assert np.abs(np.subtract(mask_bbox(frame.mask > 0), expected)).max() <= BBOX_TOLERANCE_PX
 
@@ -324,8 +327,14 @@ def test_stored_poses_are_noisy_and_exact_ones_are_kept(tiny):
 def test_monocular_capture_holds_out_novel_poses_and_views(body, tmp_path):
     config = replace(
         SynthConfig(capture="monocular"),
-        identities=1, frames=8, test_frames=4, novel_views=2, novel_view_stride=4,
-        width=48, height=40, texture_size=64,
+        identities=1,
+        frames=8,
+        test_frames=4,
+        novel_views=2,
+        novel_view_stride=4,
+        width=48,
+        height=40,
+        texture_size=64,
     )
     generate(config, seed=2, out=tmp_path / "mono", workers=1, progress=False)
     assert check(tmp_path / "mono") == []

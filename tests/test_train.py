@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 import torch
-
 from conftest import TINY_MODEL
+
 from pghm.model import ModelConfig
 from pghm.train.data import TrainingData
 from pghm.train.fit import FitConfig, fit, network_parameters
@@ -84,7 +84,9 @@ def test_fit_stage1_changes_only_the_latent_stage2_also_the_unet(tiny_dataset, p
     config.stage2 = LoopConfig(steps=3, images_per_shard=2, checkpoint_every=0)
     stage2 = fit(subject, prior, tmp_path / "a2.pt", config)
     changed = {name for name, value in stage2.model.state_dict().items() if not torch.equal(value, original[name])}
-    tuned = {name for name, p in stage2.model.named_parameters() if any(p is q for q in network_parameters(stage2.model))}
+    tuned = {
+        name for name, p in stage2.model.named_parameters() if any(p is q for q in network_parameters(stage2.model))
+    }
     assert changed and changed <= tuned
     assert any(name.startswith("unet_encoder") for name in changed)
     assert not any(name.startswith(("identity_bank", "feature_decoder")) for name in changed)
@@ -106,7 +108,9 @@ def test_eval_of_a_perfect_render(tiny_dataset, prior_file, tmp_path, monkeypatc
     from pghm.train import evaluate as evaluate_module
 
     avatar = fit(
-        tiny_dataset / "subject_000", prior_file, tmp_path / "a.pt",
+        tiny_dataset / "subject_000",
+        prior_file,
+        tmp_path / "a.pt",
         FitConfig(stage1=LoopConfig(steps=1, checkpoint_every=0), stage2=LoopConfig(steps=0), lpips=False),
     )
 
@@ -127,8 +131,12 @@ def test_eval_of_a_real_avatar_writes_reports(tiny_dataset, prior_file, tmp_path
     from pghm.train.evaluate import evaluate
 
     avatar = fit(
-        tiny_dataset / "subject_000", prior_file, tmp_path / "a.pt",
-        FitConfig(stage1=LoopConfig(steps=1, checkpoint_every=0), stage2=LoopConfig(steps=1, checkpoint_every=0), lpips=False),
+        tiny_dataset / "subject_000",
+        prior_file,
+        tmp_path / "a.pt",
+        FitConfig(
+            stage1=LoopConfig(steps=1, checkpoint_every=0), stage2=LoopConfig(steps=1, checkpoint_every=0), lpips=False
+        ),
     )
     result = evaluate(avatar, tiny_dataset / "subject_000", tmp_path / "r.json", tmp_path / "s.png")
     summary = result.summary()

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-
 from geometry import distance_to_mesh
+
 from pghm.errors import PghmError
 from pghm.uv import atlas as atlas_module
 from pghm.uv.atlas import DILATION_RADIUS, build_atlas, rasterize_uv, uv_charts

@@ -24,21 +24,13 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 import torch
+from conftest import SMALL_MODEL as SMALL
 
 from pghm.io.avatar import save_avatar
-from pghm.model import ModelConfig
 from viewer.demo import development_avatar
 
 pytestmark = pytest.mark.gl
 
-SMALL = ModelConfig(
-    uv_resolution=64,
-    latent_channels=8,
-    encoder_channels=(8, 12, 16, 24),
-    decoder_channels=(16, 12, 8),
-    condition_channels=(4, 4, 8, 8),
-)
-"""A small network on a 64 x 64 atlas (~2.8k Gaussians): every branch, fast on 2 cores."""
 WINDOW = (960, 640)
 CHANGE_LEVELS = 8
 """A channel difference above this many 8-bit levels marks a pixel as changed."""

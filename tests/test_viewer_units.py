@@ -13,24 +13,17 @@ import numpy as np
 import pytest
 import roma
 import torch
+from conftest import SMALL_MODEL as SMALL
 
 from pghm.errors import PghmError
 from pghm.model import ModelConfig, subject_geometry
-from pghm.render_video import Framing
+from pghm.render import Framing
 from pghm.uv.atlas import build_atlas
 from pghm.uv.regions import NO_REGION, REGION_NAMES, region_counts, region_map
 from viewer.camera import OrbitController
 from viewer.demo import development_avatar
 from viewer.identity import IdentityEditor, bank_pca
 from viewer.scene import POSE_JOINTS, PoseState
-
-SMALL = ModelConfig(
-    uv_resolution=64,
-    latent_channels=8,
-    encoder_channels=(8, 12, 16, 24),
-    decoder_channels=(16, 12, 8),
-    condition_channels=(4, 4, 8, 8),
-)
 
 
 @pytest.fixture(scope="module")
@@ -217,7 +210,7 @@ def test_clock_loops_or_stops(body):
 
 def test_driver_reuses_arrays_only_for_the_same_output_and_set():
     """Single-head models return one output for both sets: the set must still switch."""
-    from pghm.render_video import AvatarDriver
+    from pghm.render import AvatarDriver
 
     config = ModelConfig(**{**SMALL.to_dict(), "head": "single"})
     driver = AvatarDriver(development_avatar(config, seed=8))

@@ -11,9 +11,8 @@ import sys
 from pathlib import Path
 
 from pghm.errors import EXIT_USER_ERROR, DisplayError, PghmError
+from viewer.settings import DEFAULT_AVATAR
 
-DEFAULT_AVATAR = Path(__file__).resolve().parent.parent / "assets" / "avatar.pt"
-"""The trained default avatar shipped with the repository."""
 HEADLESS_HINT = "render without a window: pghm render AVATAR.pt --out out.mp4"
 
 

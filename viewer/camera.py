@@ -2,7 +2,7 @@
 
 Mouse gestures map to :meth:`OrbitController.orbit` (left drag), :meth:`pan` (right drag)
 and :meth:`zoom` (wheel); the views of :data:`SNAP_VIEWS` and :meth:`reset` restore angles.
-The camera itself is built by :func:`pghm.render_video.orbit_camera` (shared with
+The camera itself is built by :func:`pghm.render.framing.orbit_camera` (shared with
 ``pghm render``), in OpenCV axes like every pghm camera.
 """
 
@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pghm.errors import PghmError
-from pghm.render_video import DEFAULT_FOV_Y, Framing, orbit_camera
+from pghm.render import DEFAULT_FOV_Y, Framing, orbit_camera
 from pghm.splat import Camera
 
 DEGREES_PER_PIXEL = 0.4

@@ -19,7 +19,7 @@ from pghm.data.open_motion import motion_names
 from viewer.camera import FOV_RANGE, SNAP_VIEWS
 from viewer.identity import COMPONENT_RANGE, GAIN_RANGE
 from viewer.scene import ANGLE_LIMIT, AXES, POSE_JOINTS, SPEED_RANGE
-from viewer.settings import PANEL_WIDTH, RENDER_SCALES, SCALE_RANGE
+from viewer.settings import PANEL_WIDTH, RENDER_SCALES, SCALE_RANGE, SHIPPED_MOTIONS
 
 if TYPE_CHECKING:
     from viewer.viewer import Viewer
@@ -44,7 +44,7 @@ class PanelState:
 
     avatar_path: str = ""
     motion_path: str = ""
-    browse_dir: str = field(default_factory=lambda: str(Path.cwd()))
+    browse_dir: str = field(default_factory=lambda: str(SHIPPED_MOTIONS if SHIPPED_MOTIONS.is_dir() else Path.cwd()))
     screenshot_path: str = "screenshot.png"
     screenshot_ui: bool = True
     record_path: str = "recording.mp4"

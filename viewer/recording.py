@@ -8,13 +8,14 @@ Two kinds of recording:
   ``start + k / fps`` whatever the frame time, the scene viewport only (no UI), from the
   current frame to the end of the clip, then the recording stops by itself.
 
-Files are written by :func:`pghm.render_video.open_sink` (MP4 through imageio-ffmpeg; a
+Files are written by :func:`pghm.render.sinks.open_sink` (MP4 through imageio-ffmpeg; a
 PNG sequence in ``<name>_frames/`` when no encoder is installed, or when asked with a
 directory path).
 """
 
 from __future__ import annotations
 
+import io
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +25,8 @@ import numpy as np
 from PIL import Image
 
 from pghm.errors import PghmError
-from pghm.render_video import FrameSink, open_sink
+from pghm.io.atomic import atomic_write_bytes
+from pghm.render import FrameSink, open_sink
 
 RecordSource = Literal["window", "motion"]
 
@@ -57,12 +59,13 @@ class Recording:
 
 
 def save_png(path: str | Path, image: np.ndarray) -> Path:
-    """Write (H, W, 3) uint8 ``image`` as a PNG (parent folders created)."""
+    """Write (H, W, 3) uint8 ``image`` as a PNG, atomically (parent folders created)."""
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise PghmError(f"screenshots are PNG files, got {path}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(image).save(path)
+    buffer = io.BytesIO()
+    Image.fromarray(image).save(buffer, format="PNG")
+    atomic_write_bytes(path, buffer.getvalue())
     return path
 
 

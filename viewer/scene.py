@@ -1,6 +1,6 @@
 """The viewer's model side: avatar, pose sliders, motion timeline, identity edits -> Gaussian arrays.
 
-No GL here. :class:`AvatarScene` owns an :class:`~pghm.render_video.AvatarDriver` (the
+No GL here. :class:`AvatarScene` owns an :class:`~pghm.render.driver.AvatarDriver` (the
 avatar through a :class:`~pghm.model.evaluator.CachedEvaluator`), an
 :class:`~viewer.identity.IdentityEditor` and a :class:`PoseState`; :meth:`AvatarScene.evaluate`
 hands the renderer plain numpy arrays. What re-runs on each edit is the evaluator's rule:
@@ -19,34 +19,17 @@ import numpy as np
 import roma
 import torch
 
-from pghm.body import BodyPose
+from pghm.body import CANONICAL_JOINTS, BodyPose
 from pghm.data.motion import Motion
 from pghm.data.open_motion import REST, motion_names, open_motion
 from pghm.errors import PghmError
-from pghm.render_video import DEFAULT_FOV_Y, AvatarDriver, Framing, GaussianArrays, GaussianSet, frame_points
+from pghm.render import DEFAULT_FOV_Y, AvatarDriver, Framing, GaussianArrays, GaussianSet, frame_points
 from pghm.uv.regions import RegionMap, region_map
 from viewer.identity import IdentityEditor
 
-POSE_JOINTS = (
-    "pelvis",
-    "spine1",
-    "spine2",
-    "spine3",
-    "neck",
-    "head",
-    "left_shoulder",
-    "right_shoulder",
-    "left_elbow",
-    "right_elbow",
-    "left_wrist",
-    "right_wrist",
-    "left_hip",
-    "right_hip",
-    "left_knee",
-    "right_knee",
-    "left_ankle",
-    "right_ankle",
-)
+SLIDERLESS_JOINTS = ("left_collar", "right_collar", "left_foot", "right_foot")
+"""Canonical joints left without sliders: small motions, and fewer rows in the panel."""
+POSE_JOINTS = tuple(name for name in CANONICAL_JOINTS if name not in SLIDERLESS_JOINTS)
 """Joints with pose sliders (canonical names, :data:`pghm.body.CANONICAL_JOINTS`); the pelvis
 is the root bone, so its slider is the body's global orientation."""
 AXES = ("x", "y", "z")
@@ -224,4 +207,3 @@ class AvatarScene:
             t = w2c[:3, :3] @ world.double() + w2c[:3, 3]
             out[name] = (float(camera.fx * t[0] / t[2] + camera.cx), float(camera.fy * t[1] / t[2] + camera.cy))
         return out
-

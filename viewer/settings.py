@@ -3,9 +3,16 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
-from pghm.render_video import GaussianSet
+from pghm.render import GaussianSet
 
+ASSETS = Path(__file__).resolve().parent.parent / "assets"
+"""What the repository ships: the trained avatar and prior, and real motion-capture clips."""
+DEFAULT_AVATAR = ASSETS / "avatar.pt"
+"""The trained default avatar."""
+SHIPPED_MOTIONS = ASSETS / "motion"
+"""Real motion-capture clips (BVH); the motion browser starts here."""
 WINDOW_SIZE = (1280, 800)
 """Default window size, screen pixels."""
 PANEL_WIDTH = 360

@@ -28,7 +28,7 @@ import numpy as np
 
 from pghm.errors import PghmError
 from pghm.io.avatar import load_avatar
-from pghm.render_video import GaussianArrays, GaussianSet
+from pghm.render import GaussianArrays, GaussianSet
 from viewer.camera import OrbitController
 from viewer.panels import PanelState, draw_panels, handle_mouse
 from viewer.recording import Recording, RecordSource, save_png, start_recording

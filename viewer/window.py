@@ -56,9 +56,8 @@ class Window:
     """
 
     def __init__(self, title: str, size: tuple[int, int]) -> None:
-        from imgui_bundle import imgui  # before glfw: pyGLFW then loads imgui-bundle's GLFW
-
         import glfw
+        from imgui_bundle import imgui  # before glfw: pyGLFW then loads imgui-bundle's GLFW
 
         self._glfw = glfw
         self._imgui = imgui
@@ -67,6 +66,7 @@ class Window:
             raise DisplayError(problem)
         errors: list[str] = []
         glfw.ERROR_REPORTING = "ignore"  # failures are read from the callback and return values
+
         def collect(code: int, text: bytes | str) -> None:
             errors.append(text.decode() if isinstance(text, bytes) else str(text))
 

@@ -32,7 +32,8 @@ def load_body(name: str = "anny", model_path: str | None = None) -> BodyModel:
         from pghm.body.smplx_backend import SMPLXBody
 
         return SMPLXBody(model_path)
-    raise PghmError(f"unknown body model '{name}', expected one of {', '.join(BODY_NAMES)}")
+    shown = repr(name) if len(repr(name)) <= 40 else repr(name)[:37] + "..."  # a name from a file: one line
+    raise PghmError(f"unknown body model {shown}, expected one of {', '.join(BODY_NAMES)}")
 
 
 __all__ = [

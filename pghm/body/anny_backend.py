@@ -58,8 +58,7 @@ def _build_anny():
     cache = anny.paths.get_anny_cache_path()
     if not cache.exists() or not any(cache.iterdir()):
         print(
-            f"pghm: building the Anny body model assets into {cache} "
-            "(first run only, about 90 s)...",
+            f"pghm: building the Anny body model assets into {cache} (first run only, about 90 s)...",
             file=sys.stderr,
         )
     return anny.Anny(skinning_method="lbs")

@@ -89,16 +89,12 @@ class BodyModel(nn.Module):
     uv_coords: Tensor
     skin_weights: Tensor
 
-    def _register_topology(
-        self, faces: Tensor, uv_faces: Tensor, uv_coords: Tensor, skin_weights: Tensor
-    ) -> None:
+    def _register_topology(self, faces: Tensor, uv_faces: Tensor, uv_coords: Tensor, skin_weights: Tensor) -> None:
         self.register_buffer("faces", faces.long().contiguous(), persistent=False)
         self.register_buffer("uv_faces", uv_faces.long().contiguous(), persistent=False)
         self.register_buffer("uv_coords", uv_coords.float().contiguous(), persistent=False)
         weights = skin_weights.float()
-        self.register_buffer(
-            "skin_weights", weights / weights.sum(-1, keepdim=True), persistent=False
-        )
+        self.register_buffer("skin_weights", weights / weights.sum(-1, keepdim=True), persistent=False)
         self._levels = kinematic_levels(self.parents)
 
     @property
@@ -133,8 +129,7 @@ class BodyModel(nn.Module):
         """(B, J, 4, 4) skinning transforms of ``pose`` for rest ``joints`` (J, 3)."""
         if pose.num_bones != self.num_bones:
             raise PoseError(
-                f"pose field 'rotations' has {pose.num_bones} bones, "
-                f"the {self.name} body has {self.num_bones}"
+                f"pose field 'rotations' has {pose.num_bones} bones, the {self.name} body has {self.num_bones}"
             )
         return pose_transforms(pose, joints, self.parents, self._levels)
 

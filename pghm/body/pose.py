@@ -83,8 +83,7 @@ class BodyPose:
             rot = rot[None]
         if rot.ndim != 3 or rot.shape[1:] != (num_bones, 3):
             raise PoseError(
-                f"pose field 'rotations' has shape {tuple(rot.shape)}, "
-                f"expected ({num_bones}, 3) or (B, {num_bones}, 3)"
+                f"pose field 'rotations' has shape {tuple(rot.shape)}, expected ({num_bones}, 3) or (B, {num_bones}, 3)"
             )
         if translation is None:
             trans = torch.zeros(rot.shape[0], 3, dtype=rot.dtype)
@@ -94,8 +93,7 @@ class BodyPose:
                 trans = trans[None]
             if trans.ndim != 2 or trans.shape[1] != 3 or trans.shape[0] not in (1, rot.shape[0]):
                 raise PoseError(
-                    f"pose field 'translation' has shape {tuple(trans.shape)}, "
-                    f"expected (3,) or ({rot.shape[0]}, 3)"
+                    f"pose field 'translation' has shape {tuple(trans.shape)}, expected (3,) or ({rot.shape[0]}, 3)"
                 )
             trans = trans.expand(rot.shape[0], 3)
         for name, tensor in (("rotations", rot), ("translation", trans)):

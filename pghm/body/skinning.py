@@ -83,18 +83,14 @@ def forward_kinematics(
         parent_rot = rot[:, parent]
         # A_j = A_p L_j: rotation Q_p R_j, translation Q_p l_j + a_p.
         rot = rot.index_copy(1, level, parent_rot @ rotmats[:, level])
-        trans = trans.index_copy(
-            1, level, (parent_rot @ local_trans[:, level, :, None])[..., 0] + trans[:, parent]
-        )
+        trans = trans.index_copy(1, level, (parent_rot @ local_trans[:, level, :, None])[..., 0] + trans[:, parent])
     top = torch.cat([rot, trans[..., None]], dim=-1)
     bottom = torch.zeros_like(top[..., :1, :])
     bottom[..., 0, 3] = 1.0
     return torch.cat([top, bottom], dim=-2)
 
 
-def pose_transforms(
-    pose: BodyPose, joints: Tensor, parents: list[int], levels: list[Tensor] | None = None
-) -> Tensor:
+def pose_transforms(pose: BodyPose, joints: Tensor, parents: list[int], levels: list[Tensor] | None = None) -> Tensor:
     """Skinning transforms for a :class:`BodyPose`: (B, J, 4, 4)."""
     rotmats = roma.rotvec_to_rotmat(pose.rotations)
     return forward_kinematics(rotmats, joints.to(rotmats.dtype), pose.translation, parents, levels)

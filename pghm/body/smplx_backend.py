@@ -52,20 +52,14 @@ class SMPLXBody(BodyModel):
             import smplx
             from smplx.joint_names import JOINT_NAMES
         except ImportError:
-            raise PghmError(
-                "the SMPL-X body needs the smplx package: pip install 'pghm[smplx]'"
-            ) from None
+            raise PghmError("the SMPL-X body needs the smplx package: pip install 'pghm[smplx]'") from None
         path = Path(model_path)
         if not path.is_file():
             raise PghmError(f"{path}: SMPL-X model file not found")
         try:
-            layer = smplx.SMPLX(
-                str(path), ext=path.suffix.lstrip("."), num_betas=num_betas, use_pca=False
-            )
+            layer = smplx.SMPLX(str(path), ext=path.suffix.lstrip("."), num_betas=num_betas, use_pca=False)
         except Exception as error:  # noqa: BLE001 - smplx raises many types on a foreign file
-            raise PghmError(
-                f"{path}: not a readable SMPL-X model file ({type(error).__name__}: {error})"
-            ) from None
+            raise PghmError(f"{path}: not a readable SMPL-X model file ({type(error).__name__}: {error})") from None
         vt, ft = _read_uv(path)
         self.name = "smplx"
         self.bone_names = list(JOINT_NAMES[:SMPLX_NUM_JOINTS])

@@ -1,10 +1,13 @@
 """``pghm bench``: named benchmarks that print a table and write JSON (and a plot).
 
     pghm bench splat [--gaussians N --resolution R --repeats K --threads T --out DIR --plot PNG]
+    pghm bench stress [--fuzz-seconds S --report docs/stress.md --out DIR]
 
 Benchmarks live in :data:`BENCHMARKS` (name -> function of the parsed arguments); add one
 by adding an entry. ``splat`` sweeps the splatter's optional approximations on the body
-scene and reports, per setting, median time and error against the exact image.
+scene and reports, per setting, median time and error against the exact image. ``stress``
+runs the stress suite (tests/stress) and the loader fuzzer and writes their record as
+docs/stress.md (see :mod:`pghm.stress_report`).
 """
 
 from __future__ import annotations
@@ -34,7 +37,13 @@ def _splat(args: argparse.Namespace) -> int:
     return 0
 
 
-BENCHMARKS: dict[str, Callable[[argparse.Namespace], int]] = {"splat": _splat}
+def _stress(args: argparse.Namespace) -> int:
+    from pghm.stress_report import run_stress
+
+    return run_stress(args.report, args.out, args.fuzz_seconds)
+
+
+BENCHMARKS: dict[str, Callable[[argparse.Namespace], int]] = {"splat": _splat, "stress": _stress}
 """Benchmark name -> function of the parsed arguments returning an exit status."""
 
 
@@ -62,4 +71,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--out", type=Path, default=DEFAULT_OUT, help=f"directory for JSON results (default {DEFAULT_OUT})"
     )
     parser.add_argument("--plot", type=Path, help="PNG path for the plot (splat: docs/splat_pareto.png)")
+    parser.add_argument(
+        "--report",
+        type=Path,
+        default=Path("docs") / "stress.md",
+        help="stress: the Markdown report to write (default docs/stress.md)",
+    )
+    parser.add_argument(
+        "--fuzz-seconds", type=float, default=30.0, help="stress: time budget of the loader fuzzer (default 30)"
+    )
     parser.set_defaults(func=_run)

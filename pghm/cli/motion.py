@@ -22,6 +22,7 @@ from pghm.data.motion import Motion
 from pghm.data.procedural import PROCEDURAL_MOTIONS, procedural_motion
 from pghm.data.retarget import RIG_MAPS, UNIT_SCALES, clip_facing, detect_rig, import_bvh, leg_length, retarget_bvh
 from pghm.errors import MotionFileError
+from pghm.io.atomic import save_figure
 
 PREVIEW_VERTEX_STRIDE = 4
 """Plot every 4th vertex: enough points to read a pose, few enough to draw quickly."""
@@ -163,7 +164,7 @@ def _preview(args: argparse.Namespace) -> int:
                 ax.set_yticks([])
                 ax.set_title(f"{Path(source).stem} {frame / motion.fps:.1f}s {title}", fontsize=6)
     figure.tight_layout()
-    figure.savefig(args.out, dpi=args.dpi)
+    save_figure(figure, args.out, dpi=args.dpi)
     plt.close(figure)
     print(f"{args.out}: {len(args.clips)} clips x {count} frames")
     return 0
@@ -182,7 +183,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     importer.add_argument("--units", choices=("auto", *UNIT_SCALES), default="auto", help="the clip's length unit")
     importer.add_argument("--rig", choices=tuple(RIG_MAPS), help="the clip's rig (default: detected from joint names)")
     importer.add_argument(
-        "--no-scale", action="store_true", help="keep the clip's root trajectory size instead of fitting it to the body's legs"
+        "--no-scale",
+        action="store_true",
+        help="keep the clip's root trajectory size instead of fitting it to the body's legs",
     )
     importer.set_defaults(func=_import)
 

@@ -3,7 +3,7 @@
     pghm render avatar.pt [--motion FILE_OR_NAME] [--orbit] [--size WxH] [--fps F]
                           [--frames N] [--backend auto|gl|cpu] --out out.mp4|out.png|dir/
 
-A thin wrapper over :func:`pghm.render_video.render_video`; see docs/viewer.md.
+A thin wrapper over :func:`pghm.render.job.render_video`; see docs/viewer.md.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from pghm.errors import PghmError
-from pghm.render_video import DEFAULT_FPS, DEFAULT_SIZE, RenderJob, render_video
+from pghm.render import DEFAULT_FPS, DEFAULT_SIZE, RenderJob, render_video
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -54,7 +54,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--frames", type=int, help="number of frames (default: the motion once / one orbit / 1)")
     parser.add_argument("--start", type=float, default=0.0, help="seconds into the motion of the first frame")
     parser.add_argument(
-        "--backend", choices=("auto", "gl", "cpu"), default="auto",
+        "--backend",
+        choices=("auto", "gl", "cpu"),
+        default="auto",
         help="gl (OpenGL through EGL), cpu (the CPU splatter) or auto (default: gl if EGL works, else cpu)",
     )
     parser.add_argument("--identity", type=int, default=0, help="identity of a prior's bank")

@@ -13,19 +13,27 @@ from pghm.model import ModelConfig
 def _model_arguments(parser: argparse.ArgumentParser) -> None:
     defaults = ModelConfig()
     group = parser.add_argument_group("model (prior training only)")
-    group.add_argument("--uv-resolution", type=int, default=defaults.uv_resolution, help="L, texels per side (default %(default)s)")
+    group.add_argument(
+        "--uv-resolution", type=int, default=defaults.uv_resolution, help="L, texels per side (default %(default)s)"
+    )
     group.add_argument("--latent-channels", type=int, default=defaults.latent_channels, help="C (default %(default)s)")
-    group.add_argument("--head", choices=("multi", "single"), default=defaults.head, help="U-Net heads (default %(default)s)")
+    group.add_argument(
+        "--head", choices=("multi", "single"), default=defaults.head, help="U-Net heads (default %(default)s)"
+    )
 
 
 def _loop_arguments(parser: argparse.ArgumentParser, prefix: str, steps: int, images: int) -> None:
     parser.add_argument(f"--{prefix}steps", type=int, default=steps, help="optimisation steps (default %(default)s)")
-    parser.add_argument(f"--{prefix}images", type=int, default=images, help="images per identity group (default %(default)s)")
+    parser.add_argument(
+        f"--{prefix}images", type=int, default=images, help="images per identity group (default %(default)s)"
+    )
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seeds the batch plan (default %(default)s)")
-    parser.add_argument("--checkpoint-every", type=int, default=100, help="steps between checkpoints (default %(default)s)")
+    parser.add_argument(
+        "--checkpoint-every", type=int, default=100, help="steps between checkpoints (default %(default)s)"
+    )
     parser.add_argument("--resume", action="store_true", help="continue from OUT.ckpt")
     parser.add_argument("--no-pose-refinement", action="store_true", help="keep the stored poses fixed")
     parser.add_argument("--no-lpips", action="store_true", help="leave the LPIPS term out even if its weights exist")
@@ -37,7 +45,9 @@ def register(subparsers) -> None:
     prior.add_argument("data_dir", help="a folder of subject folders (pghm synth --config prior)")
     prior.add_argument("--out", required=True, help="prior file to write, e.g. prior.pt")
     _loop_arguments(prior, "", 3000, 4)
-    prior.add_argument("--shards", type=int, default=1, help="identity groups per step; a multiple of the torchrun processes")
+    prior.add_argument(
+        "--shards", type=int, default=1, help="identity groups per step; a multiple of the torchrun processes"
+    )
     prior.add_argument("--lr", type=float, default=1e-3, help="network learning rate (default %(default)s)")
     prior.add_argument("--identities", type=int, default=None, help="train on the first N subjects only (default: all)")
     _model_arguments(prior)
@@ -59,6 +69,7 @@ def register(subparsers) -> None:
     evaluate.add_argument("--split", default="test")
     evaluate.add_argument("--report", default=None, help="JSON report path (default: AVATAR.eval.json)")
     evaluate.add_argument("--strip", default=None, help="PNG strip path (default: AVATAR.eval.png)")
+    evaluate.add_argument("--true-poses", action="store_true", help="render with a synthetic subject's exact poses")
     evaluate.add_argument("--body-model-path", default=None)
     evaluate.set_defaults(func=run_eval)
 
@@ -74,7 +85,11 @@ def run_train_prior(args: argparse.Namespace) -> int:
     _logging()
     model = ModelConfig(uv_resolution=args.uv_resolution, latent_channels=args.latent_channels, head=args.head)
     loop = LoopConfig(
-        steps=args.steps, shards=args.shards, images_per_shard=args.images, seed=args.seed, checkpoint_every=args.checkpoint_every
+        steps=args.steps,
+        shards=args.shards,
+        images_per_shard=args.images,
+        seed=args.seed,
+        checkpoint_every=args.checkpoint_every,
     )
     config = PriorConfig(
         model=model,
@@ -86,7 +101,10 @@ def run_train_prior(args: argparse.Namespace) -> int:
         max_identities=args.identities,
     )
     avatar = train_prior(args.data_dir, args.out, config, resume=args.resume)
-    print(f"wrote {args.out}: {avatar.metadata['identities']} identities, {avatar.metadata['steps']} steps, {avatar.metadata['seconds']} s")
+    print(
+        f"wrote {args.out}: {avatar.metadata['identities']} identities, "
+        f"{avatar.metadata['steps']} steps, {avatar.metadata['seconds']} s"
+    )
     return 0
 
 
@@ -117,9 +135,15 @@ def run_eval(args: argparse.Namespace) -> int:
 
     report = args.report or f"{args.avatar}.eval.json"
     strip = args.strip or f"{args.avatar}.eval.png"
-    result = evaluate(args.avatar, args.subject_dir, report, strip, split=args.split, body_model_path=args.body_model_path)
+    result = evaluate(
+        args.avatar,
+        args.subject_dir,
+        report,
+        strip,
+        split=args.split,
+        body_model_path=args.body_model_path,
+        true_poses=args.true_poses,
+    )
     print(json.dumps(result.summary()))
     print(f"wrote {report} and {strip}")
     return 0
-
-

@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pghm.data.motion import MAX_FRAMES
+from pghm.data.motion import MAX_FPS, MAX_FRAMES
 from pghm.errors import MotionFileError
 
 POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
@@ -60,6 +60,9 @@ _CHANNEL_BY_LOWER = {name.lower(): name for name in CHANNEL_KINDS}
 MAX_BVH_BYTES = 512 * 2**20
 """Largest file read (512 MiB): MAX_FRAMES rows of a 60-joint, 6-channel rig at ~10
 characters a number take ~360 MB."""
+MIN_FRAME_TIME = 1.0 / MAX_FPS
+"""Shortest frame time accepted (seconds): the motion files' highest frame rate. A shorter one
+(a denormal such as 5e-324) would make the frame rate overflow to infinity."""
 MAX_JOINTS = 1024
 """More joints than any motion-capture rig (full hands and face are a few hundred)."""
 
@@ -126,7 +129,9 @@ class BvhClip:
         for joint in range(self.num_joints):
             columns = list(self.channel_columns(joint))
             order = "".join(c[0] for c in self.channels[joint] if c in ROTATION_CHANNELS)
-            rotation_columns = [col for col, c in zip(columns, self.channels[joint], strict=True) if c in ROTATION_CHANNELS]
+            rotation_columns = [
+                col for col, c in zip(columns, self.channels[joint], strict=True) if c in ROTATION_CHANNELS
+            ]
             if order:
                 local[:, joint] = euler_to_matrices(values[:, rotation_columns], order)
         return local
@@ -243,7 +248,9 @@ class _Block:
     has_channels: bool = False
 
 
-def _parse_hierarchy(lines: list[str], where: str) -> tuple[list[str], list[int], np.ndarray, list[tuple[str, ...]], list[tuple[int, np.ndarray]]]:
+def _parse_hierarchy(
+    lines: list[str], where: str
+) -> tuple[list[str], list[int], np.ndarray, list[tuple[str, ...]], list[tuple[int, np.ndarray]]]:
     """Names, parents, offsets, channels and End Sites of the HIERARCHY section's ``lines``.
 
     An explicit stack of open blocks instead of recursion, so no nesting depth can
@@ -345,7 +352,9 @@ def _parse_channels(tokens: _Tokens, line: int) -> tuple[str, ...]:
             raise tokens.error(f"CHANNELS {count_token} lists only {len(names)} channel names", line)
         name = _CHANNEL_BY_LOWER.get(token.lower())
         if name is None:
-            raise tokens.error(f"unknown channel '{token[:40]}', expected one of {', '.join(CHANNEL_KINDS)}", token_line)
+            raise tokens.error(
+                f"unknown channel '{token[:40]}', expected one of {', '.join(CHANNEL_KINDS)}", token_line
+            )
         if name in names:
             raise tokens.error(f"channel '{name}' listed twice", token_line)
         names.append(name)
@@ -359,7 +368,9 @@ def _header_value(lines: list[str], index: int, pattern: re.Pattern, what: str, 
         raise MotionFileError(f"{where}: the MOTION section ends before '{what}:'")
     match = pattern.match(lines[index])
     if match is None:
-        raise MotionFileError(f"{where}: line {index + 1}: expected '{what}: <value>', found '{lines[index].strip()[:60]}'")
+        raise MotionFileError(
+            f"{where}: line {index + 1}: expected '{what}: <value>', found '{lines[index].strip()[:60]}'"
+        )
     return match.group(1)
 
 
@@ -379,8 +390,11 @@ def _parse_motion(lines: list[str], start: int, num_channels: int, where: str) -
         frame_time = float(time_text)
     except ValueError:
         raise MotionFileError(f"{where}: line {body[1] + 1}: frame time '{time_text[:40]}' is not a number") from None
-    if not (np.isfinite(frame_time) and frame_time > 0):
-        raise MotionFileError(f"{where}: line {body[1] + 1}: frame time must be a positive number, got {time_text[:40]}")
+    if not (np.isfinite(frame_time) and frame_time >= MIN_FRAME_TIME):
+        raise MotionFileError(
+            f"{where}: line {body[1] + 1}: frame time must be a number of seconds of at least "
+            f"{MIN_FRAME_TIME:g}, got {time_text[:40]}"
+        )
     rows = body[2:]
     if len(rows) != frames:
         raise MotionFileError(f"{where}: the file declares {frames} frames but has {len(rows)} data rows")
@@ -396,7 +410,9 @@ def _parse_motion(lines: list[str], start: int, num_channels: int, where: str) -
     finite = np.isfinite(values)
     if not finite.all():
         row, column = np.argwhere(~finite)[0]
-        raise MotionFileError(f"{where}: line {rows[row] + 1}: value {column + 1} is {values[row, column]}, not a finite number")
+        raise MotionFileError(
+            f"{where}: line {rows[row] + 1}: value {column + 1} is {values[row, column]}, not a finite number"
+        )
     return frame_time, values
 
 

@@ -15,7 +15,6 @@ Files are read with ``allow_pickle=False``: a motion file can never run code.
 from __future__ import annotations
 
 import io
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,10 +24,20 @@ import torch
 from pghm.body.pose import BodyPose
 from pghm.errors import MotionFileError
 from pghm.io.atomic import atomic_write_bytes
+from pghm.io.read_errors import NPZ_READ_ERRORS
 
 MOTION_KEYS = ("rotations", "translation", "fps", "body", "bone_names", "source")
 MAX_FRAMES = 100_000
 """Longest clip accepted (about 55 minutes at 30 fps; 100k x 104 bones x 3 floats = 125 MB)."""
+MIN_FPS = 1e-3
+MAX_FPS = 1e6
+"""Frame rates accepted: far beyond any capture (24 to 1000 fps) either way, but bounded, so
+durations and frame counts computed from them stay finite and reasonable."""
+
+
+def _first_line(error: BaseException) -> str:
+    text = str(error).strip()
+    return text.splitlines()[0] if text else type(error).__name__
 
 
 @dataclass
@@ -57,8 +66,7 @@ class Motion:
         frames = self.rotations.shape[0] if self.rotations.ndim == 3 else -1
         if self.rotations.ndim != 3 or self.rotations.shape[1:] != (len(self.bone_names), 3):
             raise MotionFileError(
-                f"motion 'rotations' has shape {self.rotations.shape}, "
-                f"expected (frames, {len(self.bone_names)}, 3)"
+                f"motion 'rotations' has shape {self.rotations.shape}, expected (frames, {len(self.bone_names)}, 3)"
             )
         if self.translation.shape != (frames, 3):
             raise MotionFileError(f"motion 'translation' has shape {self.translation.shape}, expected ({frames}, 3)")
@@ -66,8 +74,10 @@ class Motion:
             raise MotionFileError("motion has no frames")
         if frames > MAX_FRAMES:
             raise MotionFileError(f"motion has {frames} frames, more than the {MAX_FRAMES} accepted")
-        if not (np.isfinite(self.fps) and self.fps > 0):
-            raise MotionFileError(f"motion 'fps' must be a positive number, got {self.fps}")
+        if not (np.isfinite(self.fps) and MIN_FPS <= self.fps <= MAX_FPS):
+            raise MotionFileError(
+                f"motion 'fps' must be a positive number from {MIN_FPS:g} to {MAX_FPS:g}, got {self.fps}"
+            )
         for name in ("rotations", "translation"):
             if not np.isfinite(getattr(self, name)).all():
                 raise MotionFileError(f"motion '{name}' has non-finite values")
@@ -98,8 +108,9 @@ class Motion:
     def check_skeleton(self, body_name: str, bone_names: list[str]) -> None:
         """Raise :class:`MotionFileError` when the clip was made for another skeleton."""
         if self.body != body_name or list(self.bone_names) != list(bone_names):
+            shown = repr(self.body) if len(repr(self.body)) <= 40 else repr(self.body)[:37] + "..."  # one line
             raise MotionFileError(
-                f"motion is for the '{self.body}' skeleton ({len(self.bone_names)} bones), "
+                f"motion is for the {shown} skeleton ({len(self.bone_names)} bones), "
                 f"not '{body_name}' ({len(bone_names)} bones); re-import or re-generate it for this body"
             )
 
@@ -129,10 +140,15 @@ class Motion:
                 if missing:
                     raise MotionFileError(f"{path}: not a pghm motion file, missing {', '.join(missing)}")
                 fields = {key: data[key] for key in MOTION_KEYS}
+                for key in ("body", "source"):
+                    if fields[key].ndim != 0 or fields[key].dtype.kind != "U":
+                        raise MotionFileError(
+                            f"{path}: motion '{key}' must be one string, got {fields[key].dtype} {fields[key].shape}"
+                        )
         except MotionFileError:
             raise
-        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
-            raise MotionFileError(f"{path}: unreadable motion file ({error})") from None
+        except NPZ_READ_ERRORS as error:
+            raise MotionFileError(f"{path}: unreadable motion file ({_first_line(error)})") from None
         try:
             return Motion(
                 rotations=fields["rotations"],

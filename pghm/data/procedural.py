@@ -194,8 +194,7 @@ class _Skeleton:
         missing = [name for name in REQUIRED_JOINTS if name not in body.joint_map]
         if missing:
             raise PghmError(
-                f"the {body.name} body does not map the joints {', '.join(missing)} "
-                "that procedural motions move"
+                f"the {body.name} body does not map the joints {', '.join(missing)} that procedural motions move"
             )
         self.body = body
         self.joints = rest.joints.detach().double().numpy()
@@ -474,7 +473,11 @@ def arm_raises(
         upper = skeleton.direction(f"{side}_shoulder", f"{side}_elbow")
         lift = np.radians(ARM_OVERHEAD_DEG) - skeleton.arm_elevation(side)
         builder.turn(f"{side}_shoulder", swing_axis(upper, UP), lift * first)
-        builder.turn(f"{side}_shoulder", skeleton.sagittal_axis(hanging[side], FORWARD), np.radians(ARM_OVERHEAD_DEG - ARM_HANG_DEG) * second)
+        builder.turn(
+            f"{side}_shoulder",
+            skeleton.sagittal_axis(hanging[side], FORWARD),
+            np.radians(ARM_OVERHEAD_DEG - ARM_HANG_DEG) * second,
+        )
         straighten = np.radians(ARM_RAISE_ELBOW_DEG) - skeleton.elbow_flexion(side)
         builder.turn(f"{side}_elbow", skeleton.elbow_axis(side), straighten * (first + second))
     return builder.motion(None, lock_feet=False, fps=fps, source="procedural:arm_raises")
@@ -511,8 +514,12 @@ def squat(
         shin = skeleton.direction(f"{side}_knee", f"{side}_ankle")
         builder.turn(f"{side}_hip", skeleton.sagittal_axis(thigh, FORWARD), np.radians(SQUAT_HIP_DEG) * amount)
         builder.turn(f"{side}_knee", skeleton.sagittal_axis(shin, -FORWARD), np.radians(SQUAT_KNEE_DEG) * amount)
-        builder.turn(f"{side}_ankle", skeleton.sagittal_axis(FORWARD, UP), np.radians(SQUAT_KNEE_DEG - SQUAT_HIP_DEG) * amount)
-        builder.turn(f"{side}_shoulder", skeleton.sagittal_axis(hanging[side], FORWARD), np.radians(SQUAT_ARMS_DEG) * amount)
+        builder.turn(
+            f"{side}_ankle", skeleton.sagittal_axis(FORWARD, UP), np.radians(SQUAT_KNEE_DEG - SQUAT_HIP_DEG) * amount
+        )
+        builder.turn(
+            f"{side}_shoulder", skeleton.sagittal_axis(hanging[side], FORWARD), np.radians(SQUAT_ARMS_DEG) * amount
+        )
         straighten = np.radians(ARM_RAISE_ELBOW_DEG) - skeleton.elbow_flexion(side)
         builder.turn(f"{side}_elbow", skeleton.elbow_axis(side), straighten * amount)
     builder.spread(skeleton.spine, swing_axis(UP, FORWARD), np.radians(SQUAT_TRUNK_DEG) * amount)
@@ -584,7 +591,9 @@ STRESS_SWEEPS: tuple[tuple[str, str, float, float], ...] = (
 arm; converted with the body's rest angles); all other angles are from the rest pose."""
 
 
-def _stress_axis(skeleton: _Skeleton, group: str, movement: str, side: str, sign: float) -> tuple[str, np.ndarray, float]:
+def _stress_axis(
+    skeleton: _Skeleton, group: str, movement: str, side: str, sign: float
+) -> tuple[str, np.ndarray, float]:
     """The joint, rest-pose axis and reference angle (radians) of one limb movement.
 
     The reference is the rest pose's own angle for the movement: the rest elevation for

@@ -101,7 +101,13 @@ DIRECTION_TARGETS: dict[str, tuple[str, ...]] = {
     **{
         f"{side}_{joint}": (f"{side}_{child}",)
         for side in ("left", "right")
-        for joint, child in (("collar", "shoulder"), ("shoulder", "elbow"), ("elbow", "wrist"), ("hip", "knee"), ("knee", "ankle"))
+        for joint, child in (
+            ("collar", "shoulder"),
+            ("shoulder", "elbow"),
+            ("elbow", "wrist"),
+            ("hip", "knee"),
+            ("knee", "ankle"),
+        )
     },
 }
 """Canonical joint -> joints down its chain, in order of preference, whose direction from it

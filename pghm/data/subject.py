@@ -36,6 +36,7 @@ from PIL import Image
 
 from pghm.errors import DatasetError
 from pghm.io.atomic import atomic_write_bytes
+from pghm.io.read_errors import IMAGE_READ_ERRORS, NPZ_READ_ERRORS
 
 SUBJECT_FORMAT = "pghm-subject"
 DATASET_FORMAT = "pghm-dataset"
@@ -55,6 +56,11 @@ ROTATION_TOLERANCE = 1e-3
 FRAME_MARGIN = 0.5
 """The subject's centre may project up to this fraction of the image size outside it
 (a body partly out of frame) before the checker reports it."""
+
+
+def _first_line(error: BaseException) -> str:
+    text = str(error).strip()
+    return text.splitlines()[0] if text else type(error).__name__
 
 
 def image_name(index: int) -> str:
@@ -184,9 +190,7 @@ def write_image(directory: str | Path, index: int, rgb: np.ndarray, mask: np.nda
     """
     directory = Path(directory)
     for folder, pixels in (("images", rgb), ("masks", mask)):
-        path = directory / folder / image_name(index)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_bytes(png_bytes(pixels, compress_level))
+        atomic_write_bytes(directory / folder / image_name(index), png_bytes(pixels, compress_level))
 
 
 def write_dataset_meta(directory: str | Path, subjects: list[str], meta: dict) -> None:
@@ -239,7 +243,7 @@ def _read_json(path: Path) -> object:
         raise DatasetError(f"{path}: missing")
     try:
         return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as error:
         raise DatasetError(f"{path}: unreadable JSON ({error})") from None
 
 
@@ -249,19 +253,88 @@ def _read_npz(path: Path, required: tuple[str, ...]) -> dict[str, np.ndarray]:
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {key: data[key] for key in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
-        raise DatasetError(f"{path}: unreadable ({error})") from None
+    except NPZ_READ_ERRORS as error:
+        raise DatasetError(f"{path}: unreadable ({_first_line(error)})") from None
     missing = [key for key in required if key not in arrays]
     if missing:
         raise DatasetError(f"{path}: missing {', '.join(missing)}")
     return arrays
 
 
+NUMERIC_KEYS = {
+    "cameras.npz": (*CAMERA_KEYS, "frame_index", "view_index"),
+    "poses.npz": ("rotations", "translation", "shape", "rotations_true", "translation_true"),
+}
+"""Arrays that must hold numbers (all but ``shape`` at least one-dimensional)."""
+
+
+def _non_numeric(arrays: dict[str, np.ndarray], keys: tuple[str, ...]) -> list[tuple[str, str]]:
+    """(key, problem) for each of ``keys`` present that is not a numeric array of the right rank."""
+    found = []
+    for key in keys:
+        if key not in arrays:
+            continue
+        array = arrays[key]
+        if array.dtype.kind not in "fiu":
+            found.append((key, f"must hold numbers, not {array.dtype}"))
+        elif array.ndim == 0 and key != "shape":
+            found.append((key, "must be an array, not a single number"))
+    return found
+
+
+MAX_FRAME_INDEX = 10**6
+"""Largest frame_index accepted: one pose-correction slot is allocated per frame up to it."""
+
+
+def _check_values(directory: Path, cameras: dict[str, np.ndarray], poses: dict[str, np.ndarray]) -> None:
+    """Values every use of a subject needs (its shapes already checked); DatasetError names the first bad one.
+
+    Cameras and poses must be finite with positive focal lengths and image sizes, frame and
+    view indices in range: a NaN camera or pose would otherwise reach training as a silent NaN.
+    ``pghm data check`` lists every problem; this stops at the first.
+    """
+
+    def fail(file: str, message: str, bad: np.ndarray) -> DatasetError:
+        return DatasetError(
+            f"{directory / file}: {message} for image(s) {_indices(bad)}; run pghm data check {directory}"
+        )
+
+    for file, arrays, keys in (
+        ("cameras.npz", cameras, ("K", "world_to_camera")),
+        ("poses.npz", poses, ("rotations", "translation", "rotations_true", "translation_true")),
+    ):
+        for key in keys:
+            if key in arrays:
+                values = arrays[key].astype(np.float64)
+                bad = ~np.isfinite(values.reshape(len(values), -1)).all(1)
+                if bad.any():
+                    raise fail(file, f"'{key}' is not finite", bad)
+    K = cameras["K"].astype(np.float64)
+    bad_focal = ~((K[:, 0, 0] > 0) & (K[:, 1, 1] > 0))
+    if bad_focal.any():
+        raise fail("cameras.npz", "K has a non-positive focal length", bad_focal)
+    bad_size = ~((cameras["height"] >= 1) & (cameras["width"] >= 1))
+    if bad_size.any():
+        raise fail("cameras.npz", "height and width must be positive", bad_size)
+    for key in ("frame_index", "view_index"):
+        if key in cameras:
+            bad_index = ~((cameras[key] >= 0) & (cameras[key] < MAX_FRAME_INDEX))
+            if bad_index.any():
+                raise fail("cameras.npz", f"'{key}' must be in 0..{MAX_FRAME_INDEX - 1}", bad_index)
+    if not np.isfinite(np.atleast_1d(poses["shape"]).astype(np.float64)).all():
+        raise DatasetError(f"{directory / 'poses.npz'}: 'shape' is not finite")
+
+
 def _read_arrays(directory: Path) -> SubjectArrays:
     """The subject's arrays, with every shape checked (raises DatasetError)."""
     cameras = _read_npz(directory / "cameras.npz", CAMERA_KEYS)
     poses = _read_npz(directory / "poses.npz", POSE_KEYS)
+    for file, arrays in (("cameras.npz", cameras), ("poses.npz", poses)):
+        for key, problem in _non_numeric(arrays, NUMERIC_KEYS[file]):
+            raise DatasetError(f"{directory / file}: '{key}' {problem}")
     n = len(cameras["K"])
+    if n == 0:
+        raise DatasetError(f"{directory / 'cameras.npz'}: describes no images")
     bones = [str(name) for name in np.atleast_1d(poses["bone_names"])]
     expected = {
         ("cameras.npz", "K"): (cameras["K"], (n, 3, 3)),
@@ -280,12 +353,13 @@ def _read_arrays(directory: Path) -> SubjectArrays:
     for (file, key), (array, shape) in expected.items():
         if array.shape != shape:
             raise DatasetError(f"{directory / file}: '{key}' has shape {array.shape}, expected {shape}")
+    _check_values(directory, cameras, poses)
     splits = _read_json(directory / "splits.json")
     if not isinstance(splits, dict) or not all(isinstance(v, list) for v in splits.values()):
-        raise DatasetError(f"{directory / 'splits.json'}: expected {{\"train\": [indices], ...}}")
+        raise DatasetError(f'{directory / "splits.json"}: expected {{"train": [indices], ...}}')
     for name, indices in splits.items():
-        if not all(isinstance(i, int) and 0 <= i < n for i in indices):
-            raise DatasetError(f"{directory / 'splits.json'}: split '{name}' has an index outside 0..{n - 1}")
+        if not all(type(i) is int and 0 <= i < n for i in indices):
+            raise DatasetError(f"{directory / 'splits.json'}: split {name!r} has an index outside 0..{n - 1}")
     return SubjectArrays(
         K=cameras["K"].astype(np.float32),
         world_to_camera=cameras["world_to_camera"].astype(np.float32),
@@ -309,8 +383,8 @@ def read_rgb(path: Path) -> np.ndarray:
     try:
         with Image.open(path) as image:
             pixels = np.asarray(image.convert("RGB"))
-    except (OSError, ValueError) as error:
-        raise DatasetError(f"{path}: unreadable image ({error})") from None
+    except IMAGE_READ_ERRORS as error:
+        raise DatasetError(f"{path}: unreadable image ({_first_line(error)})") from None
     return pixels.astype(np.float32) / 255.0
 
 
@@ -319,8 +393,8 @@ def read_mask(path: Path) -> np.ndarray:
     try:
         with Image.open(path) as image:
             pixels = np.asarray(image.convert("L"))
-    except (OSError, ValueError) as error:
-        raise DatasetError(f"{path}: unreadable mask ({error})") from None
+    except IMAGE_READ_ERRORS as error:
+        raise DatasetError(f"{path}: unreadable mask ({_first_line(error)})") from None
     return (pixels >= 128).astype(np.float32)
 
 
@@ -458,14 +532,17 @@ def _load_npz_for_check(path: Path, required: tuple[str, ...], problems: list[Pr
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {key: data[key] for key in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as error:
-        problems.append(Problem(path.name, f"unreadable .npz archive ({error})"))
+    except NPZ_READ_ERRORS as error:
+        problems.append(Problem(path.name, f"unreadable .npz archive ({_first_line(error)})"))
         return None
     missing = [key for key in required if key not in arrays]
     if missing:
         problems.append(Problem(path.name, f"missing {', '.join(missing)}"))
         return None
-    return arrays
+    wrong = _non_numeric(arrays, NUMERIC_KEYS.get(path.name, ()))
+    for key, problem in wrong:
+        problems.append(Problem(path.name, f"'{key}' {problem}"))
+    return None if wrong else arrays
 
 
 def _indices(mask: np.ndarray) -> str:
@@ -493,7 +570,9 @@ def _check_cameras(cameras: dict, poses: dict | None, problems: list[Problem]) -
         | (np.abs(E[:, 3] - np.array([0.0, 0.0, 0.0, 1.0])).max(1) > ROTATION_TOLERANCE)
     )
     if not_rigid.any():
-        problems.append(Problem("cameras.npz", f"world_to_camera is not a rigid transform for image(s) {_indices(not_rigid)}"))
+        problems.append(
+            Problem("cameras.npz", f"world_to_camera is not a rigid transform for image(s) {_indices(not_rigid)}")
+        )
     if poses is None or poses["translation"].shape != (len(E), 3):
         return
     # The subject's centre (its root translation) must lie in front of each camera and
@@ -521,7 +600,9 @@ def _check_cameras(cameras: dict, poses: dict | None, problems: list[Problem]) -
         | (v > (1 + FRAME_MARGIN) * height)
     )
     for i in np.flatnonzero(outside):
-        problems.append(Problem("cameras.npz", f"subject centre projects far outside image {i} (at u={u[i]:.0f}, v={v[i]:.0f})"))
+        problems.append(
+            Problem("cameras.npz", f"subject centre projects far outside image {i} (at u={u[i]:.0f}, v={v[i]:.0f})")
+        )
 
 
 def _check_png(path: Path, label: str, mode: str, size: tuple[int, int], problems: list[Problem], decode: bool) -> None:
@@ -535,15 +616,19 @@ def _check_png(path: Path, label: str, mode: str, size: tuple[int, int], problem
                 problems.append(Problem(label, f"not a PNG ({image.format})"))
                 return
             if image.size != size:
-                problems.append(Problem(label, f"size {image.size[0]}x{image.size[1]}, cameras.npz says {size[0]}x{size[1]}"))
+                problems.append(
+                    Problem(label, f"size {image.size[0]}x{image.size[1]}, cameras.npz says {size[0]}x{size[1]}")
+                )
             if image.mode != mode:
                 problems.append(Problem(label, f"mode {image.mode}, expected {mode}"))
             if decode and image.mode in ("L", "1", "P", "LA", "RGB", "RGBA"):
                 values = np.unique(np.asarray(image.convert("L")))
                 if not np.isin(values, (0, 255)).all():
-                    problems.append(Problem(label, f"mask not binary ({len(values)} distinct values; expected only 0 and 255)"))
-    except (OSError, ValueError) as error:
-        problems.append(Problem(label, f"unreadable PNG ({error})"))
+                    problems.append(
+                        Problem(label, f"mask not binary ({len(values)} distinct values; expected only 0 and 255)")
+                    )
+    except IMAGE_READ_ERRORS as error:
+        problems.append(Problem(label, f"unreadable PNG ({_first_line(error)})"))
 
 
 def check_subject(directory: str | Path) -> list[Problem]:
@@ -562,13 +647,16 @@ def check_subject(directory: str | Path) -> list[Problem]:
             meta = json.loads(meta_path.read_text(encoding="utf-8"))
             if not isinstance(meta, dict) or meta.get("format") != SUBJECT_FORMAT:
                 problems.append(Problem("meta.json", f'"format" must be "{SUBJECT_FORMAT}"'))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as error:
             problems.append(Problem("meta.json", f"unreadable JSON ({error})"))
     cameras = _load_npz_for_check(directory / "cameras.npz", CAMERA_KEYS, problems)
     poses = _load_npz_for_check(directory / "poses.npz", POSE_KEYS, problems)
     if cameras is None:
         return problems
     n = len(cameras["K"])
+    if n == 0:
+        problems.append(Problem("cameras.npz", "describes no images"))
+        return problems
     shapes_ok = True
     for key, shape in (("K", (n, 3, 3)), ("world_to_camera", (n, 4, 4)), ("height", (n,)), ("width", (n,))):
         if cameras[key].shape != shape:
@@ -601,18 +689,23 @@ def check_subject(directory: str | Path) -> list[Problem]:
             problems.append(Problem("splits.json", 'expected {"train": [indices], "test": [indices], ...}'))
         else:
             for name, indices in splits.items():
-                if not isinstance(indices, list) or not all(isinstance(i, int) and 0 <= i < n for i in indices):
-                    problems.append(Problem("splits.json", f"split '{name}' must list image indices in 0..{n - 1}"))
+                if not isinstance(indices, list) or not all(type(i) is int and 0 <= i < n for i in indices):
+                    problems.append(Problem("splits.json", f"split {name!r} must list image indices in 0..{n - 1}"))
             if isinstance(splits.get("test"), list) and isinstance(splits["train"], list):
-                shared = set(splits["train"]) & set(splits["test"])
+                shared = {i for i in splits["train"] if type(i) is int} & {i for i in splits["test"] if type(i) is int}
                 if shared:
                     problems.append(Problem("splits.json", f"{len(shared)} image(s) are in both train and test"))
     except FileNotFoundError:
         problems.append(Problem("splits.json", "missing"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as error:
         problems.append(Problem("splits.json", f"unreadable JSON ({error})"))
 
     if not shapes_ok:
+        return problems
+    sizes = np.stack([cameras["width"], cameras["height"]], axis=1).astype(np.float64)
+    bad_size = ~((sizes >= 1) & (sizes <= 2**31 - 1)).all(1)
+    if bad_size.any():
+        problems.append(Problem("cameras.npz", f"height and width must be positive for image(s) {_indices(bad_size)}"))
         return problems
     for folder in ("images", "masks"):
         if not (directory / folder).is_dir():
@@ -644,7 +737,7 @@ def check(path: str | Path) -> list[Problem]:
     if meta_path.is_file():
         try:
             meta = json.loads(meta_path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as error:
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as error:
             return [Problem("meta.json", f"unreadable JSON ({error})")]
     if isinstance(meta, dict) and meta.get("format") == DATASET_FORMAT:
         subjects = meta.get("subjects")
@@ -658,7 +751,11 @@ def check(path: str | Path) -> list[Problem]:
             problems += [Problem(f"{name}/{p.path}", p.message) for p in check_subject(path / name)]
         return problems
     if meta is None and not (path / "cameras.npz").is_file():
-        return [Problem(str(path), "neither a subject (cameras.npz, poses.npz, ...) nor a dataset (meta.json listing subjects)")]
+        return [
+            Problem(
+                str(path), "neither a subject (cameras.npz, poses.npz, ...) nor a dataset (meta.json listing subjects)"
+            )
+        ]
     return check_subject(path)
 
 

@@ -33,11 +33,17 @@ SPEC_DEFINES: dict[str, int | float] = {
 constants (one definition, in :mod:`pghm.splat`) and the texture layout."""
 
 
-def build_program(ctx: moderngl.Context, vertex: str, fragment: str) -> moderngl.Program:
-    """A program from ``shaders/<vertex>.glsl`` and ``shaders/<fragment>.glsl`` with SPEC_DEFINES."""
+def build_program(
+    ctx: moderngl.Context, vertex: str, fragment: str, precision: shaders.Precision | None = None
+) -> moderngl.Program:
+    """A program from ``shaders/<vertex>.glsl`` and ``shaders/<fragment>.glsl`` with SPEC_DEFINES.
+
+    ``precision`` ("float" or "double") is for shaders written with the ``real`` macro types
+    (see :mod:`shaders`): it sets their ``#version`` and defines the types.
+    """
     return ctx.program(
-        vertex_shader=shaders.source(vertex, SPEC_DEFINES),
-        fragment_shader=shaders.source(fragment, SPEC_DEFINES),
+        vertex_shader=shaders.source(vertex, SPEC_DEFINES, precision),
+        fragment_shader=shaders.source(fragment, SPEC_DEFINES, precision),
     )
 
 

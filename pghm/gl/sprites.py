@@ -87,9 +87,7 @@ class _Pinhole:
         width, height = int(camera.width), int(camera.height)
         if width <= 0 or height <= 0:
             raise PghmError(f"camera size must be positive, got {width} x {height}")
-        return _Pinhole(
-            float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy), width, height, w2c
-        )
+        return _Pinhole(float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy), width, height, w2c)
 
 
 @dataclass
@@ -148,10 +146,11 @@ class SpriteRenderer:
         sort: "cpu" (default, fastest on llvmpipe) or "gpu" (bitonic network in fragment
             passes; see :mod:`pghm.gl.sort`).
         precision: of the per-Gaussian projection. "double" (OpenGL 4.0 or
-            GL_ARB_gpu_shader_fp64: ``gaussian_sprite_fp64.*.glsl``) computes the screen
-            mean and conic in float64 like the CPU splatter, which removes the rare
-            cut-off flips of "float" (the OpenGL 3.3 path); "auto" (default) takes
-            "double" when the context offers it. docs/viewer.md has the measurements.
+            GL_ARB_gpu_shader_fp64: the sprite shaders compiled with ``real`` = ``double``,
+            see :mod:`shaders`) computes the screen mean and conic in float64 like the CPU
+            splatter, which removes the rare cut-off flips of "float" (the OpenGL 3.3
+            path, ``real`` = ``float``); "auto" (default) takes "double" when the context
+            offers it. docs/viewer.md has the measurements.
     """
 
     def __init__(
@@ -170,11 +169,12 @@ class SpriteRenderer:
             precision = "double" if supports_fp64(ctx) else "float"
         elif precision == "double" and not supports_fp64(ctx):
             version = ctx.info["GL_VERSION"]
-            raise PghmError(f"precision='double' needs OpenGL 4.0 or GL_ARB_gpu_shader_fp64; this context has {version}")
+            raise PghmError(
+                f"precision='double' needs OpenGL 4.0 or GL_ARB_gpu_shader_fp64; this context has {version}"
+            )
         self.precision = precision
         """"float" or "double": the projection the sprite program uses."""
-        suffix = "_fp64" if precision == "double" else ""
-        self._sprites = build_program(ctx, f"gaussian_sprite{suffix}.vert", f"gaussian_sprite{suffix}.frag")
+        self._sprites = build_program(ctx, "gaussian_sprite.vert", "gaussian_sprite.frag", precision)
         self._sprites["mean_scale"] = 0
         self._sprites["color_opacity"] = 1
         self._sprites["draw_order"] = 2

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import io
 import json
+import operator
 import pickle
 import zipfile
 from dataclasses import dataclass, field
@@ -67,12 +68,25 @@ class Avatar:
         """F (1, C, L, L): the personal latent of an avatar, or identity ``index`` of a prior."""
         if self.latent is not None:
             return self.latent
+        self._check_identity(index)
         with torch.no_grad():
             return self.model.decode_identity(index)
 
     def shape_of(self, index: int = 0) -> Tensor:
         """(S,) the body shape of identity ``index`` (the avatar's own for an avatar)."""
-        return self.shapes[index] if self.shapes is not None else self.shape
+        if self.shapes is None:
+            return self.shape
+        self._check_identity(index)
+        return self.shapes[index]
+
+    def _check_identity(self, index: int) -> None:
+        count = self.model.num_identities
+        try:
+            position = operator.index(index)
+        except TypeError:
+            position = -1
+        if isinstance(index, bool) or not 0 <= position < count:
+            raise PghmError(f"identity {index!r} is outside the prior's {count} identities (0 to {count - 1})")
 
 
 def _plain(value: object, where: str) -> object:
@@ -120,8 +134,10 @@ def _read(path: Path) -> dict:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as error:
         reason = str(error).splitlines()[0] if str(error) else "unpickling failed"
-        if "weights_only" in str(error) or "Unsupported global" in str(error):
+        if "Unsupported global" in str(error) or "GLOBAL" in str(error):
             reason = "refusing to load objects other than tensors and plain data (the file may contain code)"
+        elif "weights_only" in str(error):
+            reason = "its data is not a pickle of tensors and plain data (random or foreign bytes?)"
         raise _fail(path, f"not a pghm avatar file: {reason}") from None
     except (RuntimeError, EOFError, zipfile.BadZipFile, OSError, ValueError, TypeError, KeyError) as error:
         first = str(error).splitlines()[0] if str(error) else type(error).__name__
@@ -129,6 +145,17 @@ def _read(path: Path) -> dict:
     if not isinstance(payload, dict):
         raise _fail(path, f"not a pghm avatar file (holds a {type(payload).__name__})")
     return payload
+
+
+def _is_exactly(value: object, kind: type, expected: object) -> bool:
+    """``value == expected`` for a plain ``kind`` value (a tensor or list never equals a marker)."""
+    return type(value) is kind and value == expected
+
+
+def _short(value: object) -> str:
+    """A value for a message: its repr, cut to one short line."""
+    text = repr(value).replace("\n", " ")
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _check_tensor(path: Path, name: str, value: object, shape: tuple[int, ...] | None) -> Tensor:
@@ -148,19 +175,19 @@ def load_avatar(path: str | Path) -> Avatar:
     path = Path(path)
     payload = _read(path)
     missing = [key for key in REQUIRED_KEYS if key not in payload]
-    if payload.get("format") != FORMAT_NAME:
+    if not _is_exactly(payload.get("format"), str, FORMAT_NAME):
         raise _fail(path, "not a pghm avatar file (no 'format: pghm-avatar' marker)")
     if missing:
         raise _fail(path, f"missing keys: {', '.join(missing)}")
-    if payload["version"] != FORMAT_VERSION:
-        raise _fail(
-            path, f"format version {payload['version']!r}, this pghm reads version {FORMAT_VERSION}"
-        )
-    if payload["kind"] not in KINDS:
-        raise _fail(path, f"unknown kind {payload['kind']!r}")
+    if not _is_exactly(payload["version"], int, FORMAT_VERSION):
+        raise _fail(path, f"format version {_short(payload['version'])}, this pghm reads version {FORMAT_VERSION}")
+    if not isinstance(payload["kind"], str) or payload["kind"] not in KINDS:
+        raise _fail(path, f"unknown kind {_short(payload['kind'])}")
     try:
         config = ModelConfig.from_dict(payload["config"])
-    except (PghmError, TypeError, AttributeError) as error:
+    except PghmError as error:
+        raise _fail(path, str(error)) from None
+    except (TypeError, AttributeError) as error:
         raise _fail(path, f"bad model config: {error}") from None
 
     weights = payload["weights"]
@@ -169,15 +196,22 @@ def load_avatar(path: str | Path) -> Avatar:
     bank = weights["identity_bank"]
     if not isinstance(bank, Tensor) or bank.dim() != 4:
         raise _fail(path, "'weights.identity_bank' is not a (n, C, L', L') tensor")
-    model = PGHM(config, num_identities=bank.shape[0])
-    expected = model.state_dict()
+    if payload["kind"] == "prior" and bank.shape[0] == 0:
+        raise _fail(path, "a prior file must hold at least one identity")
+    # The shapes the config implies, from a model on the meta device (no memory): a config
+    # that asks for more than the file holds is rejected before anything is allocated.
+    with torch.device("meta"):
+        expected = PGHM(config, num_identities=bank.shape[0]).state_dict()
     missing_weights = sorted(set(expected) - set(weights))
-    unexpected = sorted(set(weights) - set(expected))
+    unexpected = sorted(set(weights) - set(expected), key=str)
     if missing_weights or unexpected:
-        listed = ", ".join((missing_weights or unexpected)[:3])
-        raise _fail(path, f"weights do not match the model config ({'missing' if missing_weights else 'unexpected'}: {listed})")
+        listed = ", ".join(map(str, (missing_weights or unexpected)[:3]))
+        raise _fail(
+            path, f"weights do not match the model config ({'missing' if missing_weights else 'unexpected'}: {listed})"
+        )
     for name, tensor in expected.items():
         _check_tensor(path, f"weights.{name}", weights[name], tuple(tensor.shape))
+    model = PGHM(config, num_identities=bank.shape[0])
     model.load_state_dict({k: v.float() for k, v in weights.items()})
     model.eval()
 

@@ -6,11 +6,24 @@ Scaling up on real hardware means changing these values (e.g. ``uv_resolution=25
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, fields
 from typing import Literal
 
 from pghm.errors import PghmError
 from pghm.uv.atlas import check_resolution
+
+MAX_CHANNELS = 4096
+"""Largest channel count accepted: far above any sensible width, low enough that a corrupted
+config cannot ask for terabytes."""
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_real(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 @dataclass(frozen=True)
@@ -53,16 +66,24 @@ class ModelConfig:
 
     def __post_init__(self) -> None:
         check_resolution(self.uv_resolution)
+        for name in ("latent_channels", "encoder_channels", "decoder_channels", "condition_channels"):
+            value = getattr(self, name)
+            counts = (value,) if name == "latent_channels" else value
+            if not isinstance(counts, tuple) or not all(_is_int(c) and 1 <= c <= MAX_CHANNELS for c in counts):
+                raise PghmError(f"model config: {name} must be whole numbers from 1 to {MAX_CHANNELS}, got {value!r}")
+        for name, low, high in _BOUNDS:
+            value = getattr(self, name)
+            if not (_is_real(value) and math.isfinite(value) and low <= value <= high):
+                raise PghmError(f"model config: {name} must be a number in [{low:g}, {high:g}], got {value!r}")
+        if self.min_scale > self.max_scale:
+            raise PghmError(f"model config: min_scale {self.min_scale} is larger than max_scale {self.max_scale}")
         levels = len(self.encoder_channels)
         if len(self.decoder_channels) != levels - 1 or len(self.condition_channels) != levels:
             raise PghmError(
-                "model config: decoder_channels needs one entry fewer than encoder_channels, "
-                "condition_channels as many"
+                "model config: decoder_channels needs one entry fewer than encoder_channels, condition_channels as many"
             )
         if self.uv_resolution >> (levels - 1) < 4:
             raise PghmError(f"model config: {levels} levels are too many for L = {self.uv_resolution}")
-        if self.latent_channels < 1 or min(self.encoder_channels + self.decoder_channels) < 1:
-            raise PghmError("model config: channel counts must be positive")
         if self.head not in ("multi", "single"):
             raise PghmError(f"model config: head must be 'multi' or 'single', got {self.head!r}")
 
@@ -76,9 +97,23 @@ class ModelConfig:
 
     @staticmethod
     def from_dict(values: dict) -> ModelConfig:
+        if not isinstance(values, dict):
+            raise PghmError(f"model config: expected a mapping of fields, got {type(values).__name__}")
         known = {f.name for f in fields(ModelConfig)}
         unknown = set(values) - known
         if unknown:
             raise PghmError(f"model config: unknown fields {sorted(unknown)}")
         converted = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
         return ModelConfig(**converted)
+
+
+_BOUNDS = (
+    ("max_static_offset", 0.0, 10.0),
+    ("max_pose_offset", 0.0, 10.0),
+    ("scale_factor_range", 1.0, 1e6),
+    ("base_scale_factor", 1e-6, 1e3),
+    ("min_scale", 1e-9, 10.0),
+    ("max_scale", 1e-9, 10.0),
+)
+"""(field, lowest, highest) of the float fields: finite, and where the model's formulas stay
+finite (ln r needs r >= 1; a scale must be positive)."""

@@ -16,6 +16,7 @@ from torch import Tensor
 from pghm.body.model import BodyModel
 from pghm.body.pose import BodyPose
 from pghm.body.skinning import kinematic_levels, pose_transforms
+from pghm.errors import PghmError
 from pghm.uv.atlas import UVAtlas
 from pghm.uv.maps import TexelSurface, texel_surface
 
@@ -75,6 +76,9 @@ def subject_geometry(body: BodyModel, atlas: UVAtlas, shape: Tensor | None = Non
     """The geometry of ``body`` with ``shape`` (None: the default shape) on ``atlas``."""
     shape = body.check_shape(shape)
     rest = body.rest(shape)
+    if not (bool(torch.isfinite(rest.vertices).all()) and bool(torch.isfinite(rest.joints).all())):
+        values = [round(v, 4) for v in shape.tolist()]
+        raise PghmError(f"the {body.name} body with shape {values} has non-finite vertices")
     return SubjectGeometry(
         atlas=atlas,
         surface=texel_surface(body, atlas, rest),
@@ -84,4 +88,3 @@ def subject_geometry(body: BodyModel, atlas: UVAtlas, shape: Tensor | None = Non
         shape=shape.detach().clone(),
         body_name=body.name,
     )
-

@@ -39,11 +39,11 @@ import torch
 from torch import Tensor, nn
 
 from pghm.body.pose import BodyPose
+from pghm.body.skinning import blend_transform_deltas, skin_directions
 from pghm.model.config import ModelConfig
 from pghm.model.gaussians import Gaussians
 from pghm.model.geometry import SubjectGeometry
 from pghm.model.networks import FeatureDecoder, Pyramid, PyramidDecoder, PyramidEncoder
-from pghm.body.skinning import blend_transform_deltas, skin_directions
 from pghm.uv.maps import gather_from_map, posed_points, scatter_to_map, view_directions
 
 STATIC_CHANNELS = 7
@@ -110,9 +110,19 @@ class Skinned:
 
     def select(self, index: Tensor) -> Skinned:
         """The poses ``index`` (B,) of this batch, e.g. one per view of a shared pose."""
-        return Skinned(*(field[index] for field in (
-            self.transforms, self.surface_points, self.rotation_delta, self.normals, self.root, self.pose_input
-        )))
+        return Skinned(
+            *(
+                field[index]
+                for field in (
+                    self.transforms,
+                    self.surface_points,
+                    self.rotation_delta,
+                    self.normals,
+                    self.root,
+                    self.pose_input,
+                )
+            )
+        )
 
 
 @dataclass

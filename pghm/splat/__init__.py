@@ -12,6 +12,10 @@ Inputs, one image per camera (B images, N Gaussians, H x W pixels):
     camera: fx, fy, cx, cy, W, H and world_to_camera [R T; 0 1], OpenCV axes
             (x right, y down, z forward)
 
+Every input must be finite: a NaN or infinite value is a PghmError naming the argument,
+never a silently dropped Gaussian or a NaN image. Any finite value is accepted (negative
+opacities and colours outside [0, 1] included: the formulas below say what they do).
+
 1. Pixel (row i, column j) has its centre at (j + 0.5, i + 0.5).
 2. Camera space: t = R mu + T. A Gaussian with t_z <= NEAR_PLANE (0.01) is dropped.
 3. Screen mean: u = fx t_x / t_z + cx, v = fy t_y / t_z + cy.

@@ -35,9 +35,7 @@ class RenderOutput:
     depth: Tensor
 
 
-def _check_gaussians(
-    means: Tensor, scales: Tensor, colors: Tensor, opacities: Tensor
-) -> int | None:
+def _check_gaussians(means: Tensor, scales: Tensor, colors: Tensor, opacities: Tensor) -> int | None:
     """The Gaussians' batch size (None when unbatched); raises a PghmError naming a bad argument."""
     if not isinstance(means, Tensor) or means.dim() not in (2, 3) or means.shape[-1] != 3:
         got = tuple(means.shape) if isinstance(means, Tensor) else type(means).__name__
@@ -59,14 +57,19 @@ def _check_gaussians(
             raise PghmError(f"render: {name} is {value.dtype} but means is {means.dtype}; use one dtype")
         if value.device.type != "cpu":
             raise PghmError(f"render: {name} must be on the CPU, got {value.device}")
+        finite = torch.isfinite(value.detach())
+        if not bool(finite.all()):
+            count = int((~finite).sum())
+            raise PghmError(f"render: {name} has {count} non-finite value(s); every Gaussian must be finite")
     return means.shape[0] if means.dim() == 3 else None
 
 
 def _background(background: Sequence[float] | Tensor, dtype: torch.dtype) -> Tensor:
     """(3,) background in ``dtype``; raises a PghmError unless it is 3 finite numbers."""
     try:
-        value = torch.as_tensor(background.detach() if isinstance(background, Tensor) else background,
-                                dtype=torch.float64)
+        value = torch.as_tensor(
+            background.detach() if isinstance(background, Tensor) else background, dtype=torch.float64
+        )
     except (TypeError, ValueError, RuntimeError):
         value = None
     if value is None or value.shape != (3,) or not bool(torch.isfinite(value).all()):

@@ -22,6 +22,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from pghm.io.atomic import atomic_write_bytes, save_figure
 from pghm.splat import Camera, SplatSettings, render
 from pghm.splat._projection import ALPHA_MAX, ALPHA_MIN, NEAR_PLANE, project, to_camera
 
@@ -195,8 +196,15 @@ def speed_table(
                 continue
             calls = timed_calls(scene, rgb_of)
             times = median_times(calls, baseline_repeats if name != "native" else repeats)
-            rows.append({"renderer": name, "gaussians": num_gaussians, "resolution": resolution,
-                         "forward_ms": times["forward"], "forward_backward_ms": times["forward_backward"]})
+            rows.append(
+                {
+                    "renderer": name,
+                    "gaussians": num_gaussians,
+                    "resolution": resolution,
+                    "forward_ms": times["forward"],
+                    "forward_backward_ms": times["forward_backward"],
+                }
+            )
     return rows
 
 
@@ -207,8 +215,14 @@ def scaling_table(gaussian_counts: Sequence[int], resolutions: Sequence[int], re
     for num_gaussians, resolution in cases:
         scene = body_scene(num_gaussians, resolution)
         times = median_times(timed_calls(scene, renderers(scene)["native"]), repeats)
-        rows.append({"gaussians": num_gaussians, "resolution": resolution,
-                     "forward_ms": times["forward"], "forward_backward_ms": times["forward_backward"]})
+        rows.append(
+            {
+                "gaussians": num_gaussians,
+                "resolution": resolution,
+                "forward_ms": times["forward"],
+                "forward_backward_ms": times["forward_backward"],
+            }
+        )
     return rows
 
 
@@ -241,6 +255,7 @@ def sweep(scene: BodyScene, settings: dict[str, SplatSettings], repeats: int) ->
     exact = render(*scene.inputs(), scene.camera, backend="native").rgb
     calls, errors = {}, {}
     for name, setting in settings.items():
+
         def rgb_of(*gaussians, setting=setting):
             return render(*gaussians, scene.camera, backend="native", settings=setting).rgb
 
@@ -251,8 +266,13 @@ def sweep(scene: BodyScene, settings: dict[str, SplatSettings], repeats: int) ->
             calls[(name, operation)] = call
     times = median_times(calls, repeats)
     return [
-        {"setting": name, **errors[name], "forward_ms": times[(name, "forward")],
-         "forward_backward_ms": times[(name, "forward_backward")], "settings": asdict(setting)}
+        {
+            "setting": name,
+            **errors[name],
+            "forward_ms": times[(name, "forward")],
+            "forward_backward_ms": times[(name, "forward_backward")],
+            "settings": asdict(setting),
+        }
         for name, setting in settings.items()
     ]
 
@@ -262,7 +282,8 @@ def pareto_front(rows: list[dict], time_key: str = "forward_backward_ms", error_
     front = []
     for row in rows:
         dominated = any(
-            other[time_key] <= row[time_key] and other[error_key] <= row[error_key]
+            other[time_key] <= row[time_key]
+            and other[error_key] <= row[error_key]
             and (other[time_key] < row[time_key] or other[error_key] < row[error_key])
             for other in rows
         )
@@ -273,6 +294,7 @@ def pareto_front(rows: list[dict], time_key: str = "forward_backward_ms", error_
 
 def format_table(rows: list[dict], columns: Sequence[str]) -> str:
     """A plain-text table of ``rows``: floats to 3 significant digits."""
+
     def cell(value: object) -> str:
         if isinstance(value, float):
             return "inf" if math.isinf(value) else f"{value:.3g}"
@@ -288,8 +310,12 @@ def format_table(rows: list[dict], columns: Sequence[str]) -> str:
 
 def machine() -> dict:
     """What the numbers were measured on, and how busy the machine was (other jobs slow medians)."""
-    info = {"torch": torch.__version__, "threads": torch.get_num_threads(), "cpus": os.cpu_count(),
-            "load_average_1min": os.getloadavg()[0]}
+    info = {
+        "torch": torch.__version__,
+        "threads": torch.get_num_threads(),
+        "cpus": os.cpu_count(),
+        "load_average_1min": os.getloadavg()[0],
+    }
     pressure = Path("/proc/pressure/cpu")
     if pressure.exists():
         info["cpu_pressure"] = pressure.read_text().splitlines()[0]
@@ -297,8 +323,7 @@ def machine() -> dict:
 
 
 def write_json(path: Path, payload: dict) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"machine": machine(), **payload}, indent=2, default=str))
+    atomic_write_bytes(path, json.dumps({"machine": machine(), **payload}, indent=2, default=str).encode())
 
 
 def plot_pareto(rows: list[dict], front: Sequence[str], path: Path) -> None:
@@ -315,19 +340,24 @@ def plot_pareto(rows: list[dict], front: Sequence[str], path: Path) -> None:
         error = max(row["max_abs"], floor)
         axis.scatter(row["forward_backward_ms"], error, color="C3" if on_front else "C0", zorder=3)
         # Alternate labels above and below: settings with equal error sit side by side.
-        axis.annotate(row["setting"], (row["forward_backward_ms"], error), fontsize=7,
-                      xytext=(4, 4 if index % 2 == 0 else -10), textcoords="offset points")
+        axis.annotate(
+            row["setting"],
+            (row["forward_backward_ms"], error),
+            fontsize=7,
+            xytext=(4, 4 if index % 2 == 0 else -10),
+            textcoords="offset points",
+        )
     frontier = sorted((r for r in rows if r["setting"] in front), key=lambda r: r["forward_backward_ms"])
-    axis.plot([r["forward_backward_ms"] for r in frontier], [max(r["max_abs"], floor) for r in frontier],
-              color="C3", lw=1)
+    axis.plot(
+        [r["forward_backward_ms"] for r in frontier], [max(r["max_abs"], floor) for r in frontier], color="C3", lw=1
+    )
     axis.set_yscale("log")
     axis.set_xlabel("forward + backward, median ms (2 threads)")
     axis.set_ylabel(f"max abs rgb error vs exact (exact drawn at {floor:g})")
     axis.set_title("pghm.splat approximations: runtime against error (red: Pareto frontier)")
     axis.grid(True, which="both", alpha=0.3)
     figure.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path, dpi=110)
+    save_figure(figure, path, dpi=110)
     plt.close(figure)
 
 
@@ -343,10 +373,20 @@ def plot_scaling(rows: list[dict], path: Path) -> None:
     by_count = sorted((r for r in rows if r["resolution"] == 256), key=lambda r: r["gaussians"])
     by_size = sorted((r for r in rows if r["gaussians"] == 10_000), key=lambda r: r["resolution"])
     for axis, series, key, tick, label in (
-        (axes[0], by_count, lambda r: r["gaussians"], lambda r: f"{r['gaussians'] / 1000:g}k",
-         "Gaussians N (256 x 256)"),
-        (axes[1], by_size, lambda r: r["resolution"] ** 2, lambda r: f"{r['resolution']}^2",
-         "pixels H W (10,000 Gaussians)"),
+        (
+            axes[0],
+            by_count,
+            lambda r: r["gaussians"],
+            lambda r: f"{r['gaussians'] / 1000:g}k",
+            "Gaussians N (256 x 256)",
+        ),
+        (
+            axes[1],
+            by_size,
+            lambda r: r["resolution"] ** 2,
+            lambda r: f"{r['resolution']}^2",
+            "pixels H W (10,000 Gaussians)",
+        ),
     ):
         xs = [key(r) for r in series]
         for column, name in (("forward_ms", "forward"), ("forward_backward_ms", "forward + backward")):
@@ -363,13 +403,15 @@ def plot_scaling(rows: list[dict], path: Path) -> None:
         axis.legend()
     figure.suptitle("pghm.splat native: time against scene size")
     figure.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path, dpi=110)
+    save_figure(figure, path, dpi=110)
     plt.close(figure)
 
 
 def run_sweep(
-    num_gaussians: int = 10_000, resolution: int = 256, repeats: int = 15, output: Path | None = None,
+    num_gaussians: int = 10_000,
+    resolution: int = 256,
+    repeats: int = 15,
+    output: Path | None = None,
     plot: Path | None = None,
 ) -> tuple[list[dict], list[str]]:
     """The approximation sweep on the body scene: rows, Pareto front; JSON and PNG when paths are given."""
@@ -377,8 +419,16 @@ def run_sweep(
     rows = sweep(scene, SWEEP, repeats)
     front = pareto_front(rows)
     if output is not None:
-        write_json(output, {"gaussians": num_gaussians, "resolution": resolution, "repeats": repeats,
-                            "rows": rows, "pareto_front": front})
+        write_json(
+            output,
+            {
+                "gaussians": num_gaussians,
+                "resolution": resolution,
+                "repeats": repeats,
+                "rows": rows,
+                "pareto_front": front,
+            },
+        )
     if plot is not None:
         plot_pareto(rows, front, plot)
     return rows, front

@@ -16,10 +16,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from PIL import Image
 from torch import Tensor, nn
 
 from pghm.data.subject import Dataset, Subject
 from pghm.errors import DatasetError, PghmError
+from pghm.io.read_errors import IMAGE_READ_ERRORS
 from pghm.splat import Camera
 
 log = logging.getLogger(__name__)
@@ -58,9 +60,17 @@ class TrainingData:
         root: a subject folder, or a data set folder of subject folders (one identity each).
         split: which images to train on ("train").
         max_identities: use only the first this-many subjects (None: all).
+        true_poses: use the exact poses synthetic subjects carry (``rotations_true``)
+            instead of the estimates, to measure appearance apart from pose error.
     """
 
-    def __init__(self, root: str | Path, split: str = "train", max_identities: int | None = None) -> None:
+    def __init__(
+        self,
+        root: str | Path,
+        split: str = "train",
+        max_identities: int | None = None,
+        true_poses: bool = False,
+    ) -> None:
         root = Path(root)
         if not root.is_dir():
             raise DatasetError(f"{root}: data folder not found")
@@ -78,10 +88,16 @@ class TrainingData:
         if len(body_names) != 1:
             raise DatasetError(f"{root}: subjects use different body models {sorted(body_names)}")
         self.body_name = body_names.pop()
+        self.true_poses = true_poses
+        if true_poses and any(subject.arrays.rotations_true is None for subject in self.subjects):
+            raise DatasetError(f"{root}: no exact poses (rotations_true) to evaluate with; this is not synthetic data")
         self.images = [np.asarray(subject.split(split).indices, dtype=np.int64) for subject in self.subjects]
-        for subject, images in zip(self.subjects, self.images):
+        self.split = split
+        self.bad: set[tuple[int, int]] = set()
+        for identity, (subject, images) in enumerate(zip(self.subjects, self.images)):
             if len(images) == 0:
                 raise DatasetError(f"{subject.directory}: no '{split}' images")
+            self._check_files(identity, subject, images)
         # One pose-correction slot per (identity, frame): the views of an instant share it.
         self.frame_offsets = []
         offset = 0
@@ -90,7 +106,53 @@ class TrainingData:
             frames = subject.arrays.frame_index
             offset += int(frames.max()) + 1 if frames is not None else len(subject)
         self.num_frames = offset
-        self.bad: set[tuple[int, int]] = set()
+
+    def _check_files(self, identity: int, subject: Subject, images: np.ndarray) -> None:
+        """Every image and mask of the split exists with the size cameras.npz gives (PNG headers only).
+
+        A missing file or a wrong size is a broken data set: DatasetError, before any step
+        runs. A file whose header cannot even be parsed is a corrupted frame, skipped with a
+        warning like one that fails to decode later (see :meth:`load_group`).
+        """
+        arrays = subject.arrays
+        unreadable: dict[int, str] = {}
+        for index in images.tolist():
+            size = (int(arrays.width[index]), int(arrays.height[index]))
+            for path in (subject.image_path(index), subject.mask_path(index)):
+                if not path.is_file():
+                    raise DatasetError(
+                        f"{path}: missing ({self.split} image {index}); run pghm data check {subject.directory}"
+                    )
+                try:
+                    with Image.open(path) as image:
+                        found = image.size
+                except IMAGE_READ_ERRORS as error:
+                    unreadable[index] = f"{path}: unreadable image ({error})"
+                    break
+                if found != size:
+                    raise DatasetError(
+                        f"{path}: {found[0]}x{found[1]} pixels, cameras.npz says {size[0]}x{size[1]}; "
+                        f"run pghm data check {subject.directory}"
+                    )
+        if len(unreadable) == len(images):
+            raise DatasetError(
+                f"{subject.directory}: none of its {len(images)} '{self.split}' images can be read "
+                f"(first: {next(iter(unreadable.values()))})"
+            )
+        for index, reason in unreadable.items():
+            self._skip(identity, index, reason)
+
+    def _skip(self, identity: int, index: int, error: object) -> None:
+        self.bad.add((identity, index))
+        log.warning("skipping image %d of %s: %s", index, self.subjects[identity].directory, error)
+
+    def _check_some_readable(self, identity: int) -> None:
+        """DatasetError once every image of an identity has been skipped: training would silently do nothing."""
+        images = self.images[identity]
+        if all((identity, int(index)) in self.bad for index in images):
+            raise DatasetError(
+                f"{self.subjects[identity].directory}: none of its {len(images)} '{self.split}' images can be read"
+            )
 
     @property
     def num_identities(self) -> int:
@@ -114,8 +176,12 @@ class TrainingData:
                 width=int(frame.image.shape[1]),
                 height=int(frame.image.shape[0]),
             ),
-            rotations=torch.as_tensor(frame.rotations, dtype=torch.float32),
-            translation=torch.as_tensor(frame.translation, dtype=torch.float32),
+            rotations=torch.as_tensor(
+                frame.rotations_true if self.true_poses else frame.rotations, dtype=torch.float32
+            ),
+            translation=torch.as_tensor(
+                frame.translation_true if self.true_poses else frame.translation, dtype=torch.float32
+            ),
         )
 
     def plan(
@@ -148,9 +214,9 @@ class TrainingData:
                 continue
             try:
                 samples.append(self.load(identity, index))
-            except (DatasetError, PghmError, OSError, ValueError) as error:
-                self.bad.add((identity, index))
-                log.warning("skipping image %d of %s: %s", index, self.subjects[identity].directory, error)
+            except (DatasetError, PghmError, *IMAGE_READ_ERRORS) as error:
+                self._skip(identity, index, error)
+                self._check_some_readable(identity)
         return samples
 
 

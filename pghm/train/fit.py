@@ -20,13 +20,22 @@ from torch import nn
 from pghm.errors import PghmError
 from pghm.io.avatar import Avatar, load_avatar, save_avatar
 from pghm.model import PGHM, ModelConfig
+from pghm.model.pghm import COMPONENTS
 from pghm.train.data import PoseCorrections, TrainingData
-from pghm.train.loop import AvatarObjective, LoopConfig, LoopState, load_checkpoint, restore, run_stage
+from pghm.train.loop import (
+    AvatarObjective,
+    LoopConfig,
+    LoopState,
+    check_learning_rate,
+    load_checkpoint,
+    restore,
+    run_stage,
+)
 from pghm.train.prior import GeometryCache, checkpoint_path, lpips_for
 
 log = logging.getLogger(__name__)
 
-NETWORK_PARTS = ("unet_encoder", "static_decoder", "pose_encoder", "pose_decoder", "view_encoder", "view_decoder", "single_decoder")
+NETWORK_PARTS = tuple(part for part in COMPONENTS if part != "feature_decoder")
 """What stage 2 tunes: the U-Net and its pose/view encoders (the bank and Feature Decoder are bypassed)."""
 
 
@@ -60,11 +69,20 @@ def network_parameters(model: PGHM) -> list[nn.Parameter]:
     return [p for part in NETWORK_PARTS if hasattr(model, part) for p in getattr(model, part).parameters()]
 
 
+def _checkpoint_stage(payload: dict, path: Path) -> int:
+    """The stage (1 or 2) a fit checkpoint was saved in; PghmError for another command's checkpoint."""
+    extra = payload.get("extra")
+    stage = extra.get("stage") if isinstance(extra, dict) else None
+    if type(stage) is not int or stage not in (1, 2):
+        raise PghmError(f"{path}: not a checkpoint of pghm fit (from train-prior?); cannot --resume from it")
+    return stage
+
+
 def fit(
     subject_dir: str | Path,
     prior: str | Path | Avatar | ModelConfig,
     out: str | Path,
-    config: FitConfig = FitConfig(),
+    config: FitConfig | None = None,
     resume: bool = False,
 ) -> Avatar:
     """Personalise ``prior`` to the subject in ``subject_dir`` and save the avatar to ``out``.
@@ -73,6 +91,9 @@ def fit(
         prior: a prior file or loaded prior; or a :class:`ModelConfig` to train the same
             model from scratch (random network, latent from zero) for comparison.
     """
+    config = config or FitConfig()
+    for name in ("latent_lr", "network_lr", "pose_lr"):
+        check_learning_rate(name, getattr(config, name))
     out = Path(out)
     data = TrainingData(subject_dir)
     if data.num_identities != 1:
@@ -98,13 +119,15 @@ def fit(
     if resume and not ckpt.is_file():
         raise PghmError(f"--resume: no checkpoint {ckpt} to continue from")
     payload = load_checkpoint(ckpt) if resume else None
-    start_stage = payload["extra"]["stage"] if payload else 1
+    start_stage = _checkpoint_stage(payload, ckpt) if payload else 1
 
     stage1_opt = torch.optim.Adam([latent], lr=config.latent_lr)
     state1 = LoopState(step=config.stage1.steps)
     if start_stage == 1:
         state1 = restore(payload, objective, stage1_opt) if payload else LoopState()
-        state1 = run_stage(objective, [latent], stage1_opt, data, geometries, config.stage1, ckpt, state1, {"stage": 1}, "fit 1/2")
+        state1 = run_stage(
+            objective, [latent], stage1_opt, data, geometries, config.stage1, ckpt, state1, {"stage": 1}, "fit 1/2"
+        )
 
     network = network_parameters(model)
     for p in network:
@@ -118,7 +141,9 @@ def fit(
         state2 = restore(payload, objective, stage2_opt)
     objective.weights = config.stage2.loss
     trainable = [p for g in groups for p in g["params"]]
-    state2 = run_stage(objective, trainable, stage2_opt, data, geometries, config.stage2, ckpt, state2, {"stage": 2}, "fit 2/2")
+    state2 = run_stage(
+        objective, trainable, stage2_opt, data, geometries, config.stage2, ckpt, state2, {"stage": 2}, "fit 2/2"
+    )
 
     avatar = Avatar(
         model=model.eval(),
@@ -144,4 +169,3 @@ def fit(
         p.requires_grad_(True)
     save_avatar(out, avatar)
     return avatar
-

@@ -17,6 +17,7 @@ import contextlib
 import io
 import logging
 import math
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -27,11 +28,11 @@ from torch import Tensor, nn
 from tqdm import tqdm
 
 from pghm.body.pose import BodyPose
-from pghm.errors import PghmError
+from pghm.errors import DatasetError, PghmError
 from pghm.io.atomic import atomic_write_bytes
 from pghm.model.geometry import SubjectGeometry
 from pghm.model.pghm import PGHM
-from pghm.splat import render
+from pghm.splat import Camera, render
 from pghm.train import distributed
 from pghm.train.data import PoseCorrections, Sample, TrainingData
 from pghm.train.losses import LossWeights, objective, psnr
@@ -43,6 +44,9 @@ BACKGROUND = (1.0, 1.0, 1.0)
 LR_BACKOFF = 0.5
 """Learning-rate factor applied after a non-finite step."""
 CHECKPOINT_FORMAT = "pghm-checkpoint"
+MAX_LEARNING_RATE = 1e6
+"""Largest learning rate accepted: far above any useful one (below 1), far below the 3e37 where
+Adam's float32 step size (up to 10 lr early on) overflows and torch raises instead of stepping."""
 
 
 @dataclass
@@ -114,15 +118,28 @@ class AvatarObjective(nn.Module):
         out = self.model(
             self.identity_map(samples[0].identity), geometry, BodyPose(rotations, translation), centres, pose_index
         )
-        static, dynamic = [], []
-        for b, sample in enumerate(samples):
-            for gaussians, images in ((out.static, static), (out.dynamic, dynamic)):
-                image = render(
-                    gaussians.means[b], gaussians.scales[b], gaussians.colors[b], gaussians.opacities[b],
-                    sample.camera, background=BACKGROUND,
-                ).rgb
-                images.append(image.permute(2, 0, 1))
-        return torch.stack(static), torch.stack(dynamic), out.regularizer
+        # Both sets of all B views in one batched render: (2B, H, W, 3).
+        if len({(s.camera.width, s.camera.height) for s in samples}) > 1:
+            raise DatasetError("the images of one subject must all have the same size")
+        cameras = Camera.from_matrices(
+            torch.stack([s.camera.K for s in samples] * 2).float(),
+            torch.stack([s.camera.world_to_camera for s in samples] * 2).float(),
+            samples[0].camera.width,
+            samples[0].camera.height,
+        )
+        both = [
+            torch.cat([getattr(out.static, f), getattr(out.dynamic, f)])
+            for f in ("means", "scales", "colors", "opacities")
+        ]
+        if not all(bool(torch.isfinite(t.detach()).all()) for t in both):
+            # A diverged network: hand the loop a non-finite loss that still has a graph (the
+            # guard then skips the step and lowers the rate) rather than non-finite Gaussians,
+            # which render refuses.
+            poison = sum(t.sum() for t in both) * math.nan
+            blank = poison.expand(len(samples), 3, samples[0].camera.height, samples[0].camera.width)
+            return blank, blank, out.regularizer + poison
+        images = render(*both, cameras, background=BACKGROUND).rgb.permute(0, 3, 1, 2)
+        return images[: len(samples)], images[len(samples) :], out.regularizer
 
     def forward(self, samples: list[Sample], geometry: SubjectGeometry) -> tuple[Tensor, dict[str, float]]:
         """The loss of one identity's samples and its terms."""
@@ -145,7 +162,9 @@ class LoopState:
     history: list = field(default_factory=list)
 
 
-def save_checkpoint(path: Path, objective: AvatarObjective, optimizer: torch.optim.Optimizer, state: LoopState, extra: dict) -> None:
+def save_checkpoint(
+    path: Path, objective: AvatarObjective, optimizer: torch.optim.Optimizer, state: LoopState, extra: dict
+) -> None:
     buffer = io.BytesIO()
     torch.save(
         {
@@ -172,27 +191,55 @@ def load_checkpoint(path: Path) -> dict:
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # noqa: BLE001 - torch.load raises many types on a damaged file
-        raise PghmError(f"{path}: unreadable checkpoint ({type(error).__name__}: {str(error).splitlines()[0]})") from None
+        raise PghmError(
+            f"{path}: unreadable checkpoint ({type(error).__name__}: {str(error).splitlines()[0]})"
+        ) from None
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise PghmError(f"{path}: not a pghm checkpoint")
     return payload
 
 
 def restore(payload: dict, objective: AvatarObjective, optimizer: torch.optim.Optimizer) -> LoopState:
-    missing, unexpected = objective.load_state_dict(payload["objective"], strict=False)
-    missing = [k for k in missing if not k.startswith("lpips.")]
-    if missing or unexpected:
-        raise PghmError(f"checkpoint does not match this run (missing {missing[:3]}, unexpected {unexpected[:3]})")
-    optimizer.load_state_dict(payload["optimizer"])
-    raw = payload["state"]
-    return LoopState(
-        step=raw["step"],
-        lr_scale=raw["lr_scale"],
-        skipped_steps=raw["skipped_steps"],
-        bad_images=[tuple(b) for b in raw["bad_images"]],
-        seconds=raw["seconds"],
-        history=raw["history"],
-    )
+    """Load a checkpoint's parameters, optimizer and loop state; PghmError if it is from another run.
+
+    A checkpoint of another model size, stage or command (resuming with changed options, or
+    into the wrong ``--out``) is one line, not torch's size-mismatch traceback.
+    """
+    try:
+        missing, unexpected = objective.load_state_dict(payload["objective"], strict=False)
+        missing = [k for k in missing if not k.startswith("lpips.")]
+        if missing or unexpected:
+            raise PghmError(f"checkpoint does not match this run (missing {missing[:3]}, unexpected {unexpected[:3]})")
+        optimizer.load_state_dict(payload["optimizer"])
+        raw = payload["state"]
+        state = LoopState(
+            step=int(raw["step"]),
+            lr_scale=float(raw["lr_scale"]),
+            skipped_steps=int(raw["skipped_steps"]),
+            bad_images=[tuple(b) for b in raw["bad_images"]],
+            seconds=float(raw["seconds"]),
+            history=list(raw["history"]),
+        )
+    except PghmError:
+        raise
+    except (RuntimeError, KeyError, TypeError, ValueError, AttributeError, IndexError) as error:
+        first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise PghmError(
+            f"checkpoint does not match this run (other options or another command?): {first[:200]}"
+        ) from None
+    if state.step < 0 or not (math.isfinite(state.lr_scale) and state.lr_scale > 0):
+        raise PghmError(
+            f"checkpoint has an invalid loop state (step {state.step}, learning-rate scale {state.lr_scale})"
+        )
+    return state
+
+
+def check_learning_rate(name: str, value: float) -> None:
+    """PghmError unless ``value`` is a positive number up to MAX_LEARNING_RATE."""
+    if isinstance(value, bool) or not (
+        isinstance(value, (int, float)) and math.isfinite(value) and 0 < value <= MAX_LEARNING_RATE
+    ):
+        raise PghmError(f"{name} must be a positive number up to {MAX_LEARNING_RATE:g}, got {value}")
 
 
 def _all_finite(tensors) -> bool:
@@ -218,8 +265,10 @@ def run_stage(
     world, rank = distributed.world_size(), distributed.rank()
     if config.shards % world:
         raise PghmError(f"--shards {config.shards} is not a multiple of the {world} processes")
-    module = distributed.wrap(objective)
     base_lrs = [group["lr"] for group in optimizer.param_groups]
+    for lr in base_lrs:
+        check_learning_rate("learning rate", lr)
+    module = distributed.wrap(objective)
     data.bad.update(state.bad_images)
 
     def set_lr() -> None:
@@ -266,7 +315,9 @@ def run_stage(
                 set_lr()
                 log.warning(
                     "step %d: non-finite loss, gradient or update; step skipped, learning rate x%.2f (now scale %.3g)",
-                    state.step, LR_BACKOFF, state.lr_scale,
+                    state.step,
+                    LR_BACKOFF,
+                    state.lr_scale,
                 )
             state.step += 1
             state.seconds = time.perf_counter() - started
@@ -282,7 +333,10 @@ def run_stage(
         if rank == 0:
             state.bad_images = sorted(data.bad)
             save_checkpoint(checkpoint, objective, optimizer, state, extra)
-            progress.write(f"interrupted at step {state.step}: checkpoint saved to {checkpoint}; continue with --resume")
+            progress.write(
+                f"interrupted at step {state.step}: checkpoint saved to {checkpoint}; continue with --resume",
+                file=sys.stderr,
+            )
         raise
     finally:
         progress.close()

@@ -69,7 +69,9 @@ class LPIPS(nn.Module):
     def load_weights(self, backbone: dict, linear: dict) -> None:
         """Load torchvision AlexNet weights (``features.*`` keys) and LPIPS linear weights
         (``lin{k}.model.1.weight`` keys, as the lpips package stores them)."""
-        self.features.load_state_dict({k.removeprefix("features."): v for k, v in backbone.items() if k.startswith("features.")})
+        self.features.load_state_dict(
+            {k.removeprefix("features."): v for k, v in backbone.items() if k.startswith("features.")}
+        )
         for k, lin in enumerate(self.lins):
             lin.weight.data.copy_(linear[f"lin{k}.model.1.weight"])
 

@@ -20,8 +20,16 @@ from pghm.model import PGHM, ModelConfig, subject_geometry
 from pghm.model.geometry import SubjectGeometry
 from pghm.train import distributed
 from pghm.train.data import PoseCorrections, TrainingData
+from pghm.train.loop import (
+    AvatarObjective,
+    LoopConfig,
+    LoopState,
+    check_learning_rate,
+    load_checkpoint,
+    restore,
+    run_stage,
+)
 from pghm.train.lpips import load_lpips, lpips_status
-from pghm.train.loop import AvatarObjective, LoopConfig, LoopState, load_checkpoint, restore, run_stage
 from pghm.uv.atlas import build_atlas
 
 log = logging.getLogger(__name__)
@@ -79,8 +87,13 @@ def lpips_for(enabled: bool):
     return network, status
 
 
-def train_prior(data_dir: str | Path, out: str | Path, config: PriorConfig = PriorConfig(), resume: bool = False) -> Avatar:
-    """Train a prior on the subjects in ``data_dir`` and save it to ``out``."""
+def train_prior(
+    data_dir: str | Path, out: str | Path, config: PriorConfig | None = None, resume: bool = False
+) -> Avatar:
+    """Train a prior on the subjects in ``data_dir`` and save it to ``out`` (default config: PriorConfig())."""
+    config = config or PriorConfig()
+    for name in ("network_lr", "latent_lr", "pose_lr"):
+        check_learning_rate(name, getattr(config, name))
     distributed.init()
     out = Path(out)
     data = TrainingData(data_dir, max_identities=config.max_identities)
@@ -133,4 +146,3 @@ def train_prior(data_dir: str | Path, out: str | Path, config: PriorConfig = Pri
     if distributed.rank() == 0:
         save_avatar(out, avatar)
     return avatar
-

@@ -37,6 +37,7 @@ from torch import Tensor
 
 from pghm.errors import PghmError
 from pghm.io.atomic import atomic_write_bytes
+from pghm.io.read_errors import NPZ_READ_ERRORS
 
 SUBTEXELS = 256
 """Fixed-point steps per texel for the exact edge tests (8 bits of sub-texel precision)."""
@@ -103,8 +104,7 @@ def check_resolution(resolution: int) -> int:
         or resolution & (resolution - 1)
     ):
         raise PghmError(
-            f"UV resolution must be a power of two from {MIN_RESOLUTION} to {MAX_RESOLUTION}, "
-            f"got {resolution}"
+            f"UV resolution must be a power of two from {MIN_RESOLUTION} to {MAX_RESOLUTION}, got {resolution}"
         )
     return resolution
 
@@ -182,16 +182,12 @@ def _closest_on_segment(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarr
 
 def _closest_on_triangle(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     """(K, 2) closest points of (non-degenerate) triangles to points outside them."""
-    candidates = np.stack(
-        [_closest_on_segment(p, a, b), _closest_on_segment(p, b, c), _closest_on_segment(p, c, a)]
-    )
+    candidates = np.stack([_closest_on_segment(p, a, b), _closest_on_segment(p, b, c), _closest_on_segment(p, c, a)])
     dist = ((candidates - p[None]) ** 2).sum(-1)
     return candidates[dist.argmin(0), np.arange(len(p))]
 
 
-def rasterize_uv(
-    uv_coords: np.ndarray, uv_faces: np.ndarray, resolution: int, dilate: bool = True
-) -> UVAtlas:
+def rasterize_uv(uv_coords: np.ndarray, uv_faces: np.ndarray, resolution: int, dilate: bool = True) -> UVAtlas:
     """Rasterise UV triangles into an L x L atlas (rules in the module docstring).
 
     Args:
@@ -220,9 +216,7 @@ def rasterize_uv(
     corners = np.take_along_axis(corners, order[..., None], axis=1)
     nondegenerate = area2 != 0
 
-    tri, row, col = _candidates(
-        xy[uv_faces].min(1), xy[uv_faces].max(1), resolution
-    )
+    tri, row, col = _candidates(xy[uv_faces].min(1), xy[uv_faces].max(1), resolution)
     keep = nondegenerate[tri]
     tri, row, col = tri[keep], row[keep], col[keep]
     centre = np.stack([col * SUBTEXELS + SUBTEXELS // 2, row * SUBTEXELS + SUBTEXELS // 2], -1)
@@ -279,9 +273,7 @@ def _dilate(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Uncovered texels within ``DILATION_RADIUS`` of a triangle: (flat, triangle, barycentric)."""
     tri_xy = xy[uv_faces]
-    tri, row, col = _candidates(
-        tri_xy.min(1) - DILATION_RADIUS, tri_xy.max(1) + DILATION_RADIUS, resolution
-    )
+    tri, row, col = _candidates(tri_xy.min(1) - DILATION_RADIUS, tri_xy.max(1) + DILATION_RADIUS, resolution)
     flat = row * resolution + col
     keep = nondegenerate[tri] & ~np.isin(flat, covered_flat)
     tri, flat = tri[keep], flat[keep]
@@ -355,7 +347,7 @@ def build_atlas(body, resolution: int = 128, dilate: bool = True, use_cache: boo
     if use_cache and path.is_file():
         try:
             atlas = _atlas_from_file(path)
-        except (OSError, ValueError, KeyError):
+        except NPZ_READ_ERRORS:
             atlas = None  # a damaged cache entry is rebuilt below
     if atlas is None:
         atlas = rasterize_uv(body.uv_coords.numpy(), body.uv_faces.numpy(), resolution, dilate)

@@ -65,9 +65,7 @@ def vertex_normals(vertices: Tensor, faces: Tensor) -> Tensor:
     """(V, 3) area-weighted unit vertex normals of a triangle mesh (V, 3), (F, 3)."""
     corners = vertices[faces]  # (F, 3, 3)
     face_normals = torch.linalg.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    normals = torch.zeros_like(vertices).index_add_(
-        0, faces.reshape(-1), face_normals.repeat_interleave(3, dim=0)
-    )
+    normals = torch.zeros_like(vertices).index_add_(0, faces.reshape(-1), face_normals.repeat_interleave(3, dim=0))
     return safe_normalize(normals)
 
 

@@ -165,5 +165,3 @@ def pose_clothed_body(
     posed = lbs(torch.from_numpy(canonical), clothed.weights, transforms)
     normals = torch.stack([vertex_normals(frame, body.faces) for frame in posed])
     return posed.float().numpy(), normals.float().numpy()
-
-

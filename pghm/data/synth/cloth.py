@@ -252,9 +252,7 @@ def skirt_pelvis_weight(points: SurfacePoints, labels: np.ndarray, marks: Landma
     return SKIRT_PELVIS_BLEND * _skirt_drop(points, marks, identity) * _skirt_region(points, labels, marks)
 
 
-def cloth_displacements(
-    points: SurfacePoints, labels: np.ndarray, marks: Landmarks, identity: Identity
-) -> np.ndarray:
+def cloth_displacements(points: SurfacePoints, labels: np.ndarray, marks: Landmarks, identity: Identity) -> np.ndarray:
     """(N, 3) displacement of canonical points by the cloth, metres (module docstring)."""
     p = points.position
     offset = np.zeros(len(p))

@@ -123,7 +123,10 @@ class SynthConfig:
             (self.frames >= 1, "frames must be >= 1"),
             (self.test_frames >= 0, "test_frames must be >= 0"),
             (self.capture == "monocular" or self.test_frames < self.frames, "test_frames must be < frames"),
-            (self.novel_views >= 0 and self.novel_view_stride >= 1, "novel_views must be >= 0 and novel_view_stride >= 1"),
+            (
+                self.novel_views >= 0 and self.novel_view_stride >= 1,
+                "novel_views must be >= 0 and novel_view_stride >= 1",
+            ),
             (16 <= self.width <= 4096 and 16 <= self.height <= 4096, "width and height must be 16 to 4096 pixels"),
             (self.texture_size in (32, 64, 128, 256, 512, 1024), "texture_size must be a power of two from 32 to 1024"),
             (self.fps > 0 and self.frame_stride >= 1, "fps must be > 0 and frame_stride >= 1"),
@@ -131,7 +134,10 @@ class SynthConfig:
                 len(self.motions) > 0 and all(m in MOTION_KINDS for m in self.motions),
                 f"motions must be among {', '.join(MOTION_KINDS)}",
             ),
-            (0 < self.camera_distance[0] <= self.camera_distance[1], "camera_distance must be [near, far] with 0 < near <= far"),
+            (
+                0 < self.camera_distance[0] <= self.camera_distance[1],
+                "camera_distance must be [near, far] with 0 < near <= far",
+            ),
             (
                 -80 <= self.camera_elevation_deg[0] <= self.camera_elevation_deg[1] <= 80,
                 "camera_elevation_deg must be [low, high] within -80..80",

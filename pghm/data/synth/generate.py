@@ -135,7 +135,9 @@ def _noisy(
     config: SynthConfig, body: BodyModel, rotations: np.ndarray, translation: np.ndarray, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray]:
     bones = sorted(set(body.joint_map.values()))
-    return add_pose_noise(rotations, translation, bones, np.radians(config.pose_noise_deg), config.translation_noise_m, rng)
+    return add_pose_noise(
+        rotations, translation, bones, np.radians(config.pose_noise_deg), config.translation_noise_m, rng
+    )
 
 
 def _multiview_plan(config: SynthConfig, body: BodyModel, seed: int, index: int) -> SubjectPlan:
@@ -160,8 +162,15 @@ def _multiview_plan(config: SynthConfig, body: BodyModel, seed: int, index: int)
     span = marks.height + ARM_REACH
     target = np.array([0.0, marks.feet + span / 2, 0.0])
     K, E = rigs.ring_cameras(
-        camera_rng, config.views, target, span, config.width, config.height,
-        config.camera_distance, config.camera_elevation_deg, config.fill,
+        camera_rng,
+        config.views,
+        target,
+        span,
+        config.width,
+        config.height,
+        config.camera_distance,
+        config.camera_elevation_deg,
+        config.fill,
     )
     frame_index = np.repeat(np.arange(config.frames), config.views)
     view_index = np.tile(np.arange(config.views), config.frames)
@@ -189,7 +198,12 @@ def _multiview_plan(config: SynthConfig, body: BodyModel, seed: int, index: int)
 
 
 def _walk_in_circle(
-    config: SynthConfig, body: BodyModel, identity: Identity, joints: torch.Tensor, frames: int, rng: np.random.Generator
+    config: SynthConfig,
+    body: BodyModel,
+    identity: Identity,
+    joints: torch.Tensor,
+    frames: int,
+    rng: np.random.Generator,
 ) -> tuple[np.ndarray, np.ndarray, str]:
     """A walk turning ``walk_laps`` full turns over the training frames (continuing after).
 
@@ -254,8 +268,15 @@ def _monocular_plan(config: SynthConfig, body: BodyModel, seed: int, index: int)
         rigs.framing_focal(config.mono_distance, wide, config.width, 1.0),
     )
     K_main, E_main = rigs.monocular_cameras(
-        camera_rng, frames, centre, focal, config.width, config.height,
-        config.mono_distance, config.mono_elevation_deg, config.mono_drift_deg,
+        camera_rng,
+        frames,
+        centre,
+        focal,
+        config.width,
+        config.height,
+        config.mono_distance,
+        config.mono_elevation_deg,
+        config.mono_drift_deg,
     )
     novel_frames = np.arange(0, frames, config.novel_view_stride)
     Ks, Es, frame_index, view_index = [K_main], [E_main], [np.arange(frames)], [np.zeros(frames, dtype=np.int64)]
@@ -344,8 +365,13 @@ def _renderer(body: BodyModel, config: SynthConfig) -> MeshRenderer:
     key = ("renderer", config.width, config.height, config.msaa_samples)
     if key not in _WORKER:
         _WORKER[key] = MeshRenderer(
-            _WORKER["ctx"], body.faces.numpy(), body.uv_faces.numpy(), body.uv_coords.numpy(),
-            config.width, config.height, config.msaa_samples,
+            _WORKER["ctx"],
+            body.faces.numpy(),
+            body.uv_faces.numpy(),
+            body.uv_coords.numpy(),
+            config.width,
+            config.height,
+            config.msaa_samples,
         )
     return _WORKER[key]  # type: ignore[return-value]
 
@@ -376,7 +402,9 @@ def render_images(config: SynthConfig, plan: SubjectPlan, directory: Path, frame
         rows = [by_frame[f][0] for f in batch]
         rotations = a.rotations_true[rows].astype(np.float64)
         amplitudes = wrinkle_amplitudes(rotations, body.joint_map) if config.wrinkles else np.zeros((len(rows), 8))
-        positions, normals = pose_clothed_body(body, clothed, rotations, a.translation_true[rows].astype(np.float64), amplitudes)
+        positions, normals = pose_clothed_body(
+            body, clothed, rotations, a.translation_true[rows].astype(np.float64), amplitudes
+        )
         for k, frame in enumerate(batch):
             renderer.set_geometry(positions[k], normals[k])
             for i in by_frame[frame]:
@@ -440,7 +468,9 @@ def _versions() -> dict[str, str]:
     }
 
 
-def generate(config: SynthConfig, seed: int, out: str | Path, workers: int = 2, progress: bool = True) -> GenerationReport:
+def generate(
+    config: SynthConfig, seed: int, out: str | Path, workers: int = 2, progress: bool = True
+) -> GenerationReport:
     """Generate a dataset of ``config.identities`` subjects into the new folder ``out``.
 
     Args:

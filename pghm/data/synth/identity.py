@@ -211,9 +211,7 @@ def sample_shape(rng: np.random.Generator, shape_names: list[str]) -> tuple[floa
     """Phenotype parameters of an adult: uniform within :data:`ANNY_SHAPE_RANGES`."""
     unknown = [name for name in shape_names if name not in ANNY_SHAPE_RANGES]
     if unknown:
-        raise PghmError(
-            f"synthetic identities need the anny body's phenotypes; this body has {', '.join(unknown)}"
-        )
+        raise PghmError(f"synthetic identities need the anny body's phenotypes; this body has {', '.join(unknown)}")
     return tuple(round(float(rng.uniform(*ANNY_SHAPE_RANGES[name])), 4) for name in shape_names)
 
 

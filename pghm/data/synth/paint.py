@@ -141,7 +141,9 @@ def garment_colours(u: np.ndarray, v: np.ndarray, garment: Garment, seed: int) -
     return colour * (1 + WEAVE_CONTRAST * (weave[:, None] - 0.5))
 
 
-def _face(points: SurfacePoints, marks: Landmarks, identity: Identity, colour: np.ndarray, specular: np.ndarray) -> None:
+def _face(
+    points: SurfacePoints, marks: Landmarks, identity: Identity, colour: np.ndarray, specular: np.ndarray
+) -> None:
     """Paint eyes, brows, lips and cheeks onto the front of the head, in place."""
     p = points.position
     k = (marks.head_top - marks.eye_height) / EYE_BELOW_CROWN

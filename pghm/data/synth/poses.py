@@ -231,7 +231,9 @@ _KINDS: dict[str, Callable[[_Pose, np.ndarray, np.random.Generator], None]] = {
 }
 
 
-def ground_translation(body: BodyModel, joints: torch.Tensor, rotations: torch.Tensor, ankle_height: float) -> np.ndarray:
+def ground_translation(
+    body: BodyModel, joints: torch.Tensor, rotations: torch.Tensor, ankle_height: float
+) -> np.ndarray:
     """(F,) root height that puts the lower ankle of each pose at ``ankle_height``."""
     pose = BodyPose(rotations, torch.zeros(rotations.shape[0], 3, dtype=rotations.dtype))
     transforms = body.bone_transforms(pose, joints.to(rotations.dtype))

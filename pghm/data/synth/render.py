@@ -82,9 +82,7 @@ def projection_matrix(K: np.ndarray, width: int, height: int) -> np.ndarray:  # 
 def project_points(points: np.ndarray, K: np.ndarray, world_to_camera: np.ndarray) -> np.ndarray:  # noqa: N803
     """(N, 2) pixel positions (u, v) of world points (N, 3): the camera model's reference."""
     cam = points @ world_to_camera[:3, :3].T + world_to_camera[:3, 3]
-    return np.stack(
-        [K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2], K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]], axis=1
-    )
+    return np.stack([K[0, 0] * cam[:, 0] / cam[:, 2] + K[0, 2], K[1, 1] * cam[:, 1] / cam[:, 2] + K[1, 2]], axis=1)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,252 @@
+"""Training under numerical trouble and bad frames: no NaN is ever left behind, and nothing stops
+a run that can go on.
+
+The loop's guard (pghm/train/loop.py): a step whose loss, gradients or update is not finite is
+skipped (parameters and optimizer state as before it), the learning rate halved, and one
+warning logged. Independent truth for "skipped": the run with the bad step injected ends with
+exactly the parameters of the run that stopped before it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+from conftest import TINY_MODEL
+from stress_kit import check, cli, one_error_line
+
+from pghm.model import ModelConfig
+from pghm.train import loop as loop_module
+from pghm.train.data import TrainingData
+from pghm.train.loop import LoopConfig
+from pghm.train.prior import PriorConfig, train_prior
+
+AREA = "training"
+GUARD_LINE = "non-finite loss, gradient or update; step skipped, learning rate x0.50"
+
+
+def config(steps: int, network_lr: float = 3e-3, latent_lr: float = 5e-2, pose_lr: float = 1e-3) -> PriorConfig:
+    return PriorConfig(
+        model=ModelConfig(**TINY_MODEL),
+        loop=LoopConfig(steps=steps, images_per_shard=2, checkpoint_every=0),
+        network_lr=network_lr,
+        latent_lr=latent_lr,
+        pose_lr=pose_lr,
+        lpips=False,
+    )
+
+
+def all_finite(avatar) -> bool:
+    return all(bool(torch.isfinite(v).all()) for v in avatar.model.state_dict().values())
+
+
+def largest_difference(a, b) -> float:
+    first, second = a.model.state_dict(), b.model.state_dict()
+    return max(float((first[k] - second[k]).abs().max()) for k in first)
+
+
+def guard_lines(caplog) -> list[str]:
+    return [r.getMessage() for r in caplog.records if GUARD_LINE in r.getMessage()]
+
+
+def test_learning_rate_ten_times_too_high(tiny_dataset, tmp_path, caplog):
+    caplog.set_level(logging.WARNING)
+    hot = config(4, network_lr=1e-2, latent_lr=1e-1, pose_lr=1e-2)  # 10 x PriorConfig's defaults
+    avatar = train_prior(tiny_dataset, tmp_path / "hot.pt", hot)
+    final = avatar.metadata.get("final") or {}
+    check(
+        AREA,
+        "learning rates 10x the defaults, 4 steps",
+        "no NaN parameter left; any bad step skipped and logged",
+        f"parameters finite: {all_finite(avatar)}; skipped steps {avatar.metadata['skipped_steps']} "
+        f"({len(guard_lines(caplog))} logged); final loss {final.get('loss', 'n/a')}",
+        all_finite(avatar) and avatar.metadata["skipped_steps"] == len(guard_lines(caplog)),
+    )
+
+
+def _poison(monkeypatch, at_call: int, where: str) -> None:
+    """Make the ``at_call``-th group evaluation non-finite: its loss ("loss") or the network's Gaussians ("model")."""
+    calls = {"n": 0}
+    if where == "loss":
+        real = loop_module.objective
+
+        def objective(*args, **kwargs):
+            loss, terms = real(*args, **kwargs)
+            calls["n"] += 1
+            return (loss * math.nan if calls["n"] == at_call else loss), terms
+
+        monkeypatch.setattr(loop_module, "objective", objective)
+    else:
+        from pghm.model.pghm import PGHM
+
+        real = PGHM.assemble
+
+        def assemble(self, *args, **kwargs):
+            out = real(self, *args, **kwargs)
+            calls["n"] += 1
+            if calls["n"] == at_call:
+                out.dynamic = type(out.dynamic)(
+                    out.dynamic.means * math.nan, *(getattr(out.dynamic, f) for f in ("scales", "colors", "opacities"))
+                )
+            return out
+
+        monkeypatch.setattr(PGHM, "assemble", assemble)
+
+
+@pytest.mark.parametrize("where", ["loss", "model"], ids=["NaN loss", "NaN Gaussians from the network"])
+def test_a_non_finite_step_is_skipped_halved_and_logged(where, tiny_dataset, tmp_path, monkeypatch, caplog):
+    """Step 2 of 3 poisoned: the run must end exactly where a 2-step run ends, at half the rate."""
+    before = train_prior(tiny_dataset, tmp_path / "two.pt", config(2))
+    caplog.clear()
+    caplog.set_level(logging.WARNING)
+    _poison(monkeypatch, at_call=3, where=where)  # one group per step: the third evaluation is step index 2
+    poisoned = train_prior(tiny_dataset, tmp_path / "three.pt", config(3))
+    lines = guard_lines(caplog)
+    difference = largest_difference(before, poisoned)
+    ok = (
+        difference == 0.0
+        and poisoned.metadata["skipped_steps"] == 1
+        and all_finite(poisoned)
+        and len(lines) == 1
+        and lines[0].startswith("step 2: ")
+        and "now scale 0.5" in lines[0]
+    )
+    check(
+        AREA,
+        f"{'NaN loss' if where == 'loss' else 'NaN Gaussians from the network'} at step 2 of 3",
+        "step skipped (parameters exactly those of a 2-step run), rate halved, one warning naming the step",
+        f"parameter difference {difference:g}; skipped {poisoned.metadata['skipped_steps']}; "
+        f"log: {lines[0] if lines else 'none'}",
+        ok,
+    )
+
+
+def test_a_non_finite_update_is_undone(tiny_dataset, tmp_path, monkeypatch, caplog):
+    """The update of step 1 of 2 turns one parameter infinite: the step must be undone exactly."""
+    before = train_prior(tiny_dataset, tmp_path / "one.pt", config(1))
+    real_step = torch.optim.Adam.step
+    calls = {"n": 0}
+
+    def step(self, *args, **kwargs):
+        result = real_step(self, *args, **kwargs)
+        calls["n"] += 1
+        if calls["n"] == 2:
+            with torch.no_grad():
+                self.param_groups[0]["params"][0].view(-1)[0] = math.inf
+        return result
+
+    monkeypatch.setattr(torch.optim.Adam, "step", step)
+    caplog.set_level(logging.WARNING)
+    blown = train_prior(tiny_dataset, tmp_path / "two.pt", config(2))
+    difference = largest_difference(before, blown)
+    lines = guard_lines(caplog)
+    check(
+        AREA,
+        "an update that leaves a parameter infinite (step 1 of 2)",
+        "parameters restored exactly, rate halved, logged",
+        f"parameter difference to the 1-step run {difference:g}; log: {lines[0] if lines else 'none'}",
+        difference == 0.0 and len(lines) == 1 and lines[0].startswith("step 1: ") and all_finite(blown),
+    )
+
+
+def test_an_absurd_learning_rate_is_one_clear_error(tiny_dataset, tmp_path):
+    result = cli(
+        "train-prior",
+        tiny_dataset,
+        "--out",
+        tmp_path / "p.pt",
+        "--steps",
+        "1",
+        "--uv-resolution",
+        "64",
+        "--no-lpips",
+        "--lr",
+        "1e39",
+    )
+    ok, observed = one_error_line(result)
+    check(
+        AREA,
+        "pghm train-prior --lr 1e39 (torch's Adam raises on it)",
+        "exit 2, one line naming the learning rate",
+        observed,
+        ok and "network_lr" in result.stderr,
+    )
+
+
+def _first_drawn_image(data: TrainingData, steps: int) -> tuple[int, int, int]:
+    """(step, identity, image) of the first image the batch plan draws (the plan is a function of seed and step)."""
+    for step in range(steps):
+        for identity, images in data.plan(0, step, 1, 2):
+            return step, identity, images[0]
+    raise AssertionError("empty plan")
+
+
+def test_a_truncated_frame_is_reported_once_and_training_goes_on(tiny_dataset, tmp_path, caplog):
+    data_dir = Path(shutil.copytree(tiny_dataset, tmp_path / "data"))
+    step, identity, image = _first_drawn_image(TrainingData(data_dir), 4)
+    subject = data_dir / f"subject_{identity:03d}"
+    path = subject / "images" / f"{image:06d}.png"
+    path.write_bytes(path.read_bytes()[: len(path.read_bytes()) // 2])  # header intact, pixels cut
+    caplog.set_level(logging.WARNING)
+    avatar = train_prior(data_dir, tmp_path / "p.pt", config(4))
+    warnings = [r.getMessage() for r in caplog.records if "skipping image" in r.getMessage()]
+    ok = (
+        len(warnings) == 1
+        and f"image {image} of {subject}" in warnings[0]
+        and avatar.metadata["steps"] == 4
+        and avatar.metadata["skipped_images"] == [[identity, image]]
+        and all_finite(avatar)
+    )
+    check(
+        AREA,
+        "one truncated PNG in the data (drawn at step 0)",
+        "reported once naming the frame; all steps run",
+        f"{len(warnings)} warning(s): {warnings[0][:150] if warnings else 'none'}; steps {avatar.metadata['steps']}; "
+        f"skipped images {avatar.metadata['skipped_images']}",
+        ok,
+    )
+
+
+def test_every_frame_unreadable_is_one_clear_error(tiny_dataset, tmp_path):
+    data_dir = Path(shutil.copytree(tiny_dataset, tmp_path / "data"))
+    for path in sorted((data_dir / "subject_000" / "images").glob("*.png")):
+        path.write_bytes(path.read_bytes()[:10])  # not even a header
+    result = cli(
+        "train-prior", data_dir, "--out", tmp_path / "p.pt", "--steps", "2", "--uv-resolution", "64", "--no-lpips"
+    )
+    ok, observed = one_error_line(result)
+    check(
+        AREA,
+        "every image of a subject unreadable (pghm train-prior)",
+        "exit 2, one line: none of its images can be read (not a run that silently trains on nothing)",
+        observed,
+        ok and "none of its" in result.stderr and not (tmp_path / "p.pt").exists(),
+    )
+
+
+def test_an_image_drawn_after_others_failed_mid_run_stops_cleanly(tiny_dataset, tmp_path):
+    """When the last readable image of a subject fails while training, the run stops with a DatasetError."""
+    from pghm.errors import DatasetError
+
+    data = TrainingData(Path(shutil.copytree(tiny_dataset, tmp_path / "data")))
+    images = [int(i) for i in data.images[0]]
+    for index in images:
+        path = data.subjects[0].image_path(index)
+        path.write_bytes(path.read_bytes()[: len(path.read_bytes()) // 2])
+    loaded = sum(len(data.load_group(0, [index])) for index in images[:-1])
+    try:
+        data.load_group(0, [images[-1]])
+        observed, ok = "no error", False
+    except DatasetError as error:
+        observed, ok = str(error), "none of its" in str(error) and "\n" not in str(error)
+    check(
+        AREA,
+        "all frames of a subject found truncated during training",
+        "DatasetError once the last one fails",
+        f"{loaded} loaded before; then: {observed[-120:]}",
+        ok and loaded == 0,
+    )
