@@ -8,7 +8,7 @@ viewer's own camera (``AvatarScene.joint_pixels``), an independent path from the
 Thresholds: a pixel "changed" when a channel moved by more than CHANGE_LEVELS / 255; the
 sprite renderer is deterministic, so unchanged regions stay exactly equal (0 changed
 pixels is required, not a fraction). Locality is checked on the static Gaussian set
-(I_s), whose Gaussians depend on the pose only through skinning; the dynamic set's random
+(I_s), whose Gaussians depend on the pose only through skinning; the dynamic set's
 pose head moves every Gaussian a little with any joint, which is the model's behaviour,
 checked separately (it changes the image).
 """
@@ -28,6 +28,7 @@ from conftest import SMALL_MODEL as SMALL
 
 from pghm.io.avatar import save_avatar
 from viewer.demo import development_avatar
+from viewer.settings import DEFAULT_AVATAR
 
 pytestmark = pytest.mark.gl
 
@@ -85,10 +86,11 @@ def display():
 
 
 @pytest.fixture(scope="module")
-def avatar_file(tmp_path_factory):
-    path = tmp_path_factory.mktemp("viewer") / "avatar.pt"
-    save_avatar(path, development_avatar(SMALL, seed=1))
-    return path
+def avatar_file():
+    """The shipped default avatar, what ``pghm-view`` opens without arguments."""
+    if not DEFAULT_AVATAR.is_file():
+        pytest.fail(f"the shipped default avatar {DEFAULT_AVATAR} is missing")
+    return DEFAULT_AVATAR
 
 
 @pytest.fixture(scope="module")
@@ -262,8 +264,6 @@ def test_display_toggles_and_overlays_change_the_image(viewer, tmp_path):
 
 def test_a_prior_picks_blends_and_moves_along_components(viewer, avatar_file, tmp_path):
     """Open a prior in the running viewer; identity 1 has another body shape (new geometry)."""
-    from pghm.io.avatar import save_avatar
-
     prior = development_avatar(SMALL, kind="prior", num_identities=3, seed=7)
     prior.shapes[1] = torch.tensor([0.5, 0.5, 0.5, 0.9, 0.9, 0.5])  # heavier, taller
     path = tmp_path / "prior.pt"
