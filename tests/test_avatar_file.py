@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 import torch
 
 from pghm.errors import AvatarFileError
+from pghm.io.torch_file import ZIP_MAGIC
 from pghm.io.avatar import Avatar, avatar_payload, load_avatar, save_avatar
 from pghm.model import PGHM, ModelConfig
 
@@ -90,9 +91,20 @@ def test_truncated_file(tmp_path):
 
 
 def test_random_bytes(tmp_path):
+    """Random blobs, bare and behind a real zip header, and a real file's bytes shuffled past it."""
+    rng = np.random.default_rng(7)
     path = tmp_path / "a.pt"
-    path.write_bytes(os.urandom(4096))
-    expect_error(path, "avatar file")
+    save_avatar(path, make_avatar())
+    real = path.read_bytes()
+    for trial in range(200):
+        blob = rng.bytes(int(rng.integers(1, 8192)))
+        if trial % 3 == 1:
+            blob = ZIP_MAGIC + blob
+        elif trial % 3 == 2:
+            cut = int(rng.integers(64, len(real) - 256))
+            blob = real[:cut] + bytes(rng.permutation(np.frombuffer(real[cut:], np.uint8)))
+        path.write_bytes(blob)
+        expect_error(path, "avatar file")
 
 
 def test_foreign_tensor_file(tmp_path):

@@ -23,8 +23,6 @@ from __future__ import annotations
 import io
 import json
 import operator
-import pickle
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,6 +31,7 @@ from torch import Tensor
 
 from pghm.errors import AvatarFileError, PghmError
 from pghm.io.atomic import atomic_write_bytes
+from pghm.io.torch_file import TorchFileError, load_torch_file
 from pghm.model.config import ModelConfig
 from pghm.model.pghm import PGHM
 
@@ -128,20 +127,10 @@ def _fail(path: Path, problem: str) -> AvatarFileError:
 
 
 def _read(path: Path) -> dict:
-    if not path.is_file():
-        raise _fail(path, "avatar file not found")
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as error:
-        reason = str(error).splitlines()[0] if str(error) else "unpickling failed"
-        if "Unsupported global" in str(error) or "GLOBAL" in str(error):
-            reason = "refusing to load objects other than tensors and plain data (the file may contain code)"
-        elif "weights_only" in str(error):
-            reason = "its data is not a pickle of tensors and plain data (random or foreign bytes?)"
-        raise _fail(path, f"not a pghm avatar file: {reason}") from None
-    except (RuntimeError, EOFError, zipfile.BadZipFile, OSError, ValueError, TypeError, KeyError) as error:
-        first = str(error).splitlines()[0] if str(error) else type(error).__name__
-        raise _fail(path, f"not a readable avatar file (truncated or corrupted?): {first}") from None
+        payload = load_torch_file(path)
+    except TorchFileError as error:
+        raise _fail(path, f"not a readable avatar file: {error}") from None
     if not isinstance(payload, dict):
         raise _fail(path, f"not a pghm avatar file (holds a {type(payload).__name__})")
     return payload

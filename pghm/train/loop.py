@@ -30,6 +30,7 @@ from tqdm import tqdm
 from pghm.body.pose import BodyPose
 from pghm.errors import DatasetError, PghmError
 from pghm.io.atomic import atomic_write_bytes
+from pghm.io.torch_file import TorchFileError, load_torch_file
 from pghm.model.geometry import SubjectGeometry
 from pghm.model.pghm import PGHM
 from pghm.splat import Camera, render
@@ -189,11 +190,9 @@ def save_checkpoint(
 def load_checkpoint(path: Path) -> dict:
     """Read a checkpoint (weights_only: never runs code); PghmError if it is not one."""
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:  # noqa: BLE001 - torch.load raises many types on a damaged file
-        raise PghmError(
-            f"{path}: unreadable checkpoint ({type(error).__name__}: {str(error).splitlines()[0]})"
-        ) from None
+        payload = load_torch_file(path)
+    except TorchFileError as error:
+        raise PghmError(f"{path}: unreadable checkpoint: {error}") from None
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise PghmError(f"{path}: not a pghm checkpoint")
     return payload
