@@ -73,13 +73,14 @@ def bench_scrub(ctx, avatar, frames: int) -> list[dict]:
     load from other processes falls on all of them alike.
     """
     modes = (
-        ("I_d + view-dependent (default)", "dynamic", True, 1.0),
-        ("I_d, no view-dependent", "dynamic", False, 1.0),
-        ("I_s (static)", "static", False, 1.0),
-        ("I_d + view-dep., approx: 50% resolution", "dynamic", True, 0.5),
+        ("I_d + view-dependent (default)", "dynamic", True, 1.0, "auto"),
+        ("I_d + view-dependent, quads only (before points)", "dynamic", True, 1.0, "quads"),
+        ("I_d, no view-dependent", "dynamic", False, 1.0, "auto"),
+        ("I_s (static)", "static", False, 1.0, "auto"),
+        ("I_d + view-dep., approx: 50% resolution", "dynamic", True, 0.5, "auto"),
     )
     drivers = [AvatarDriver(avatar) for _ in modes]
-    renderers = [SpriteRenderer(ctx) for _ in modes]
+    renderers = [SpriteRenderer(ctx, primitive=mode[4]) for mode in modes]
     body, shape = drivers[0].body, drivers[0].geometry.shape
     motion = open_motion("walk", body, shape)
     identity = avatar.identity_map()
@@ -91,7 +92,7 @@ def bench_scrub(ctx, avatar, frames: int) -> list[dict]:
     stages = [{name: [] for name in names} for _ in modes]
     try:
         for k in range(frames + 2):
-            for (_label, gaussians, view_dependent, scale), driver, renderer, record in zip(
+            for (_label, gaussians, view_dependent, scale, _primitive), driver, renderer, record in zip(
                 modes, drivers, renderers, stages
             ):
                 start = time.perf_counter()
@@ -151,19 +152,20 @@ def bench_orbit(ctx, frames: int) -> list[dict]:
     exact = SpriteRenderer(ctx)
     exact.set_gaussians(means, scales, colors, opacities)
     options = (
-        ("exact, double projection (default)", "double", 1.0, False),
-        ("exact, float projection (GL 3.3)", "float", 1.0, False),
-        ("approx: internal resolution 75%", "double", 0.75, False),
-        ("approx: internal resolution 50%", "double", 0.5, False),
-        ("approx: cull back-facing", "double", 1.0, True),
-        ("approx: cull back-facing + 50%", "double", 0.5, True),
+        ("exact, double projection (default)", "double", 1.0, False, "auto"),
+        ("exact, double projection, quads only (before points)", "double", 1.0, False, "quads"),
+        ("exact, float projection (GL 3.3)", "float", 1.0, False, "auto"),
+        ("approx: internal resolution 75%", "double", 0.75, False, "auto"),
+        ("approx: internal resolution 50%", "double", 0.5, False, "auto"),
+        ("approx: cull back-facing", "double", 1.0, True, "auto"),
+        ("approx: cull back-facing + 50%", "double", 0.5, True, "auto"),
     )
-    renderers = [SpriteRenderer(ctx, precision=option[1]) for option in options]
+    renderers = [SpriteRenderer(ctx, precision=option[1], primitive=option[4]) for option in options]
     records = [{"times": [], "max": [], "mean": [], "drawn": []} for _ in options]
     try:
         # The options take turns view by view, so that load from other processes falls on all alike.
         for k, angle in enumerate(np.concatenate([angles[:2], angles])):
-            for (_label, _precision, scale, cull), renderer, record in zip(options, renderers, records):
+            for (_label, _precision, scale, cull, _primitive), renderer, record in zip(options, renderers, records):
                 camera = body_orbit_camera(angle, scale)
                 start = time.perf_counter()
                 if cull:

@@ -7,6 +7,14 @@
 // Injected defines: NEAR_PLANE, COV_DILATION, ALPHA_MIN, FRUSTUM_CLAMP, TEXTURE_WIDTH, and the
 // precision types real, real2, real3, real4, realmat4 (shaders.source(..., precision=...)).
 //
+// Primitive. By default one instanced quad per Gaussian (gl_InstanceID, 4 strip vertices).
+// With PGHM_POINTS defined, one GL point per Gaussian (gl_VertexID): the square of side
+// 2 e sqrt(max(a, c)) around (u, v) holds the footprint's bounding box. Fragments are
+// identical; llvmpipe sets up one point faster than two triangles. GL clips a point by its
+// centre, so the caller widens the viewport by `guard` pixels on every side (the largest
+// point half side) and scissors to the image: a point whose centre is off the image but
+// whose square reaches into it is still drawn. gl_FragCoord stays the image pixel.
+//
 // Precision. The projection, t through the conic, is computed in `real`: float (#version
 // 330 core) or double (#version 400 core: OpenGL 4.0 / GL_ARB_gpu_shader_fp64), the latter
 // as the CPU splatter computes it (float64 per Gaussian). In float the screen mean loses
@@ -24,6 +32,7 @@ uniform realmat4 world_to_camera;
 uniform real2 focal;              // (fx, fy) pixels
 uniform real2 principal;          // (cx, cy) pixels
 uniform vec2 image_size;          // (W, H) pixels
+uniform float guard;              // pixels the viewport extends past the image on every side
 
 flat out real2 centre;            // (u, v): pixel coordinates, row 0 at the top
 flat out vec3 conic;              // inverse(cov2d) as (a, b, c) of [[a, b], [b, c]], rounded to float once
@@ -43,8 +52,16 @@ void cull() {
     view_depth = 0.0;
 }
 
+vec4 pixel_to_clip(vec2 pixel) {
+    return vec4(2.0 * (pixel + guard) / (image_size + 2.0 * guard) - 1.0, 0.0, 1.0);
+}
+
 void main() {
+#ifdef PGHM_POINTS
+    int index = int(texelFetch(draw_order, texel(gl_VertexID), 0).r);
+#else
     int index = int(texelFetch(draw_order, texel(gl_InstanceID), 0).r);
+#endif
     vec4 ms = texelFetch(mean_scale, texel(index), 0);
     vec4 co = texelFetch(color_opacity, texel(index), 0);
     real3 t = (world_to_camera * real4(real3(ms.xyz), 1.0)).xyz;
@@ -74,16 +91,19 @@ void main() {
     // applies the exact test. The quad only has to contain the footprint, so it is built
     // in float in either precision.
     float k = 2.0 * log(co.a / ALPHA_MIN);
+    float e = sqrt(k) * 1.001 + 1e-3;
+    // No y flip: GL window row r holds image row r, so the read-back buffer (bottom row
+    // first) is the image top row first, and gl_FragCoord.xy is the spec's pixel centre.
+#ifdef PGHM_POINTS
+    gl_PointSize = 2.0 * e * sqrt(float(max(a, c)));
+    gl_Position = pixel_to_clip(vec2(mean2d));
+#else
     float l00 = sqrt(float(a));
     float l10 = float(b) / l00;
     float l11 = sqrt(max(float(c) - l10 * l10, 0.0));
-    vec2 corner = vec2(gl_VertexID & 1, gl_VertexID >> 1) * 2.0 - 1.0;
-    vec2 w = corner * (sqrt(k) * 1.001 + 1e-3);
-    vec2 pixel = vec2(mean2d) + vec2(l00 * w.x, l10 * w.x + l11 * w.y);
-
-    // No y flip: GL window row r holds image row r, so the read-back buffer (bottom row
-    // first) is the image top row first, and gl_FragCoord.xy is the spec's pixel centre.
-    gl_Position = vec4(2.0 * pixel / image_size - 1.0, 0.0, 1.0);
+    vec2 w = (vec2(gl_VertexID & 1, gl_VertexID >> 1) * 2.0 - 1.0) * e;
+    gl_Position = pixel_to_clip(vec2(mean2d) + vec2(l00 * w.x, l10 * w.x + l11 * w.y));
+#endif
     centre = mean2d;
     conic = vec3(real3(c, -b, a) / det);
     color_alpha = co;

@@ -24,7 +24,7 @@ import torch
 from pghm.errors import DisplayError, PghmError
 from pghm.gl import SpriteRenderer, driver_info, headless_context
 from pghm.gl.context import EGL_PACKAGES
-from pghm.gl.footprint import sprite_bounds
+from pghm.gl.footprint import sprite_extent
 from pghm.gl.sort import BitonicSorter, depth_order
 from pghm.splat._projection import ALPHA_MAX, ALPHA_MIN, COV_DILATION, FRUSTUM_CLAMP, NEAR_PLANE
 
@@ -213,14 +213,39 @@ def test_image_border_and_frustum_clamp(renderer):
     """Centres near and far outside the image, where the clamp changes J and not the mean."""
     rng = np.random.default_rng(4)
     cam = PinholeCamera(50.0, 55.0, 30.0, 26.0, 60, 52, np.eye(4))
-    count = 200
-    z = rng.uniform(1.0, 3.0, count)
     # x / z up to 2.5x the half field of view (the clamp is at 1.3x), both sides.
+    check_scene(renderer, border_scene(rng, cam, 200, (0.05, 0.6)), cam, background=(0.2, 0.4, 0.1))
+
+
+def border_scene(rng: np.random.Generator, cam: PinholeCamera, count: int, scale_range: tuple[float, float]):
+    """Gaussians whose centres lie up to 2.5x the half field of view off axis: many off the
+    image with footprints reaching into it."""
+    z = rng.uniform(1.0, 3.0, count)
     tan_x, tan_y = cam.width / (2 * cam.fx), cam.height / (2 * cam.fy)
     means = np.stack([rng.uniform(-2.5, 2.5, count) * tan_x * z, rng.uniform(-2.5, 2.5, count) * tan_y * z, z], 1)
-    scales = rng.uniform(0.05, 0.6, count) * z / 3
-    scene = [means, scales, rng.uniform(0, 1, (count, 3)), rng.uniform(0.2, 1.0, count)]
-    check_scene(renderer, [a.astype(np.float32) for a in scene], cam, background=(0.2, 0.4, 0.1))
+    scales = rng.uniform(*scale_range, count) * z / 3
+    return [a.astype(np.float32) for a in (means, scales, rng.uniform(0, 1, (count, 3)), rng.uniform(0.2, 1.0, count))]
+
+
+def test_points_and_quads_draw_the_same_image(ctx):
+    """Points (with the guard band) and quads cover every footprint, so the images are equal
+    bit for bit, off-image centres included; a sprite over the largest point size takes quads."""
+    rng = np.random.default_rng(16)
+    cam = PinholeCamera(50.0, 55.0, 30.0, 26.0, 60, 52, np.eye(4))
+    fits = border_scene(rng, cam, 200, (0.02, 0.2))
+    # Sigma 200 px at depth 1: a point side of 2 e sigma ~ 1400 px, over any driver's largest point.
+    too_big = [np.concatenate(pair) for pair in zip(fits, [[[0.0, 0.0, 1.0]], [4.0], [[0.3, 0.6, 0.9]], [0.5]])]
+    with SpriteRenderer(ctx) as auto, SpriteRenderer(ctx, primitive="quads") as quads:
+        for scene, primitive in ((fits, "points"), (too_big, "quads")):
+            images = []
+            for renderer in (auto, quads):
+                renderer.set_gaussians(*scene)
+                image = renderer.render(cam, background=(0.2, 0.4, 0.1))
+                images.append(np.concatenate([image.rgb, image.alpha[..., None]], -1))
+            assert auto.timings.primitive == primitive and quads.timings.primitive == "quads"
+            np.testing.assert_array_equal(images[0], images[1])
+    with pytest.raises(PghmError, match="primitive"):
+        SpriteRenderer(ctx, primitive="triangles")
 
 
 def test_heavy_overlap(renderer):
@@ -296,7 +321,7 @@ def test_draw_into_framebuffer(ctx, renderer):
 
 
 def test_screen_box_holds_every_sprite():
-    """No pixel outside sprite_bounds has alpha > 0, and a compact scene gets a small box."""
+    """No pixel outside sprite_extent's box has alpha > 0, and a compact scene gets a small box."""
     rng = np.random.default_rng(14)
     cam = PinholeCamera(50.0, 55.0, 30.0, 26.0, 60, 52, np.eye(4))
     for centre, spread, scale in (
@@ -306,7 +331,7 @@ def test_screen_box_holds_every_sprite():
     ):  # compact
         scene = random_scene(rng, 150, np.array(centre), np.array(spread), scale)
         _, alpha = reference_render(*scene, cam, (0.0, 0.0, 0.0))
-        box = sprite_bounds(
+        extent = sprite_extent(
             scene[0],
             scene[1],
             scene[3],
@@ -316,7 +341,7 @@ def test_screen_box_holds_every_sprite():
             (cam.width, cam.height),
         )
         inside = np.zeros_like(alpha, dtype=bool)
-        x, y, w, h = box
+        x, y, w, h = extent.box
         inside[y : y + h, x : x + w] = True
         assert not alpha[~inside].any()
     assert w * h < 0.3 * cam.width * cam.height  # the compact scene

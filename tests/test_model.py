@@ -11,6 +11,7 @@ from conftest import SMALL_MODEL as SMALL
 from pghm.body import BodyPose
 from pghm.model import PGHM, ModelConfig, subject_geometry
 from pghm.model.evaluator import CachedEvaluator
+from pghm.model.pghm import REG_POSITION_UNIT
 from pghm.uv.atlas import build_atlas
 
 
@@ -180,3 +181,59 @@ def test_shared_poses_equal_repeated_poses(body, geometry):
     for a, b in ((shared.static, repeated.static), (shared.dynamic, repeated.dynamic)):
         for field in ("means", "scales", "colors"):
             torch.testing.assert_close(getattr(a, field), getattr(b, field), atol=1e-6, rtol=0)
+
+
+def kabsch(source: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(R, t) minimising |R source + t - target| over (N, 3) point sets (least-squares rigid fit)."""
+    mu_s, mu_t = source.mean(0), target.mean(0)
+    u, _, vt = torch.linalg.svd((source - mu_s).T @ (target - mu_t))
+    sign = torch.sign(torch.det(vt.T @ u.T))
+    rotation = vt.T @ torch.diag(torch.tensor([1.0, 1.0, sign], dtype=source.dtype)) @ u.T
+    return rotation, mu_t - rotation @ mu_s
+
+
+def test_offset_gaussians_are_skinned_rigidly_with_the_root(body, geometry, rest):
+    """A root-only pose moves every bone alike, so LBS of V_bar + offsets is one rigid motion.
+
+    The motion is recovered from the mesh vertices alone (a Kabsch fit, exact for a rigid
+    pose), then both Gaussian sets, non-zero static and pose offsets included, must be that
+    motion applied to their rest-pose positions; the pose branch sees U_theta in the root
+    frame, which a root motion leaves unchanged, so the offsets and scales do not change.
+    """
+    model = PGHM(SMALL, num_identities=1).eval()
+    randomize_heads(model, scale=0.3)
+    identity = model.decode_identity(0).detach()
+    rotations = torch.zeros(1, body.num_bones, 3)
+    rotations[0, 0] = torch.tensor([0.4, -1.1, 0.7])
+    moved = BodyPose(rotations, torch.tensor([[0.3, -0.2, 0.5]]))
+    camera = torch.tensor([[0.0, 0.0, 3.0]])
+    with torch.no_grad():
+        at_rest = model(identity, geometry, body.rest_pose(), camera)
+        posed = model(identity, geometry, moved, camera)
+    rotation, translation = kabsch(rest.vertices.double(), body.posed_vertices(moved, rest)[0].double())
+    for before, after in ((at_rest.static, posed.static), (at_rest.dynamic, posed.dynamic)):
+        offsets = (before.means[0] - geometry.surface.positions).norm(dim=-1)
+        assert offsets.max() > 1e-3  # the offsets are really there
+        expected = before.means[0].double() @ rotation.T + translation
+        assert (after.means[0].double() - expected).abs().max() < 1e-5
+        assert (after.scales - before.scales).abs().max() < 1e-6
+
+
+def test_regulariser_is_the_l2_of_the_returned_offsets(body, geometry):
+    """At rest the posed surface is V_bar, so offsets and log scales are read off the outputs."""
+    model = PGHM(SMALL, num_identities=1).eval()
+    randomize_heads(model, scale=0.3)
+    with torch.no_grad():
+        out = model(model.decode_identity(0), geometry, body.rest_pose(), torch.tensor([[0.0, 0.0, 3.0]]))
+    base = (SMALL.base_scale_factor * geometry.texel_length).clamp(SMALL.min_scale, SMALL.max_scale)
+    static_offset = out.static.means[0] - geometry.surface.positions
+    pose_offset = out.dynamic.means[0] - out.static.means[0]
+    unit = REG_POSITION_UNIT
+    expected = (
+        static_offset.square().sum(-1).mean() / unit**2
+        + pose_offset.square().sum(-1).mean() / unit**2
+        + torch.log(out.static.scales[0] / base).square().mean()
+        + torch.log(out.dynamic.scales[0] / base).square().mean()
+    )
+    assert pose_offset.abs().max() > 1e-4 and out.regularizer > 0
+    torch.testing.assert_close(out.regularizer, expected, rtol=1e-4, atol=0)

@@ -14,7 +14,15 @@ from test_motion_procedural import StickBody, angle_deg, facing, posed_joints, p
 
 from pghm.data.bvh import load_bvh
 from pghm.data.motion import Motion
-from pghm.data.retarget import clip_facing, detect_rig, detect_units, import_bvh, resample, retarget_bvh
+from pghm.data.retarget import (
+    RIG_MAPS,
+    clip_facing,
+    detect_rig,
+    detect_units,
+    import_bvh,
+    resample,
+    retarget_bvh,
+)
 from pghm.errors import MotionFileError
 
 MOTION_DIR = Path(__file__).resolve().parent.parent / "assets" / "motion"
@@ -62,6 +70,13 @@ CLIP_JOINTS = {
         "neck": "Neck",
     },
 }  # fmt: skip
+
+CLIP_RIGS = {"mixamo_walk_69f.bvh": "mixamo", "mocapbank_455f.bvh": "mocapbank"}
+"""Each clip's rig, as assets/motion/SOURCE.md describes it."""
+CLIP_UNIT_M = 0.01
+"""Both clips are in centimetres (assets/motion/SOURCE.md)."""
+TRANSLATION_TOL_M = 1e-5
+"""Root translations of ~1 m are stored in float32 (~1e-7 m); the scale is float64."""
 
 LIMB_TOL_DEG = 1e-3
 """Limb bones are aligned exactly by construction; float32 storage of the rotations costs ~1e-5 deg."""
@@ -164,12 +179,67 @@ def test_retargeted_bones_follow_the_clip(body, stick, anny_motions, clip_positi
     target_body = body if target == "anny" else stick
     motion = anny_motions[clip_name] if target == "anny" else retarget_bvh(clip, stick)
     assert motion.num_frames == clip.num_frames and motion.fps == 30.0
-    # Only bones that a clip joint drives move; twist segments, fingers and toes stay at rest.
-    moved = np.flatnonzero(np.abs(motion.rotations).max((0, 2)) > 0)
-    assert set(moved) <= set(target_body.joint_map.values())
     errors = bone_errors(target_body, motion, clip_name, clip_positions)
     for label, error in errors.items():
         assert error < (SPINE_TOL_DEG if label == "spine" else LIMB_TOL_DEG), (label, error)
+
+
+def driven_bones(target_body, clip_name: str) -> set[int]:
+    """Body bones some joint of the clip maps to: the clip's joint names (namespace and case
+    aside) looked up in its rig's name map, then the canonical names in the body's map."""
+    rig_map = {name.lower(): canonical for name, canonical in RIG_MAPS[CLIP_RIGS[clip_name]].items()}
+    names = [name.rsplit(":", 1)[-1].lower() for name in load_bvh(MOTION_DIR / clip_name).names]
+    canonical = {rig_map[name] for name in names if name in rig_map}
+    return {target_body.joint_map[name] for name in canonical if name in target_body.joint_map}
+
+
+@pytest.mark.parametrize("clip_name", CLIPS)
+@pytest.mark.parametrize("target", ["anny", "stick"])
+def test_bones_no_clip_joint_drives_stay_exactly_at_rest(body, stick, anny_motions, clip_name, target):
+    """Twist segments, extra vertebrae, fingers and toes that no clip joint maps to keep a zero
+    rotation in every frame (exactly, not up to round-off), and every bone a clip joint maps
+    to moves: so the set of moving bones is exactly the driven set. (On the 22-bone stick
+    body the Mixamo rig drives every bone; the MocapBank rig leaves spine2 and the feet.)"""
+    target_body = body if target == "anny" else stick
+    motion = anny_motions[clip_name] if target == "anny" else import_bvh(MOTION_DIR / clip_name, stick)
+    driven = driven_bones(target_body, clip_name)
+    undriven = sorted(set(range(target_body.num_bones)) - driven)
+    np.testing.assert_array_equal(motion.rotations[:, undriven], 0.0)
+    moving = set(np.flatnonzero(np.abs(motion.rotations).max((0, 2)) > 0))
+    assert moving == driven
+
+
+def leg_length_of(at) -> float:
+    """Mean over both sides of |knee - hip| + |ankle - knee|, ``at`` giving a canonical joint's
+    position: the length the retargeter fits strides to (docs/motion.md, Root)."""
+    return float(
+        np.mean(
+            [
+                np.linalg.norm(at(f"{s}_knee") - at(f"{s}_hip")) + np.linalg.norm(at(f"{s}_ankle") - at(f"{s}_knee"))
+                for s in ("left", "right")
+            ]
+        )
+    )
+
+
+@pytest.mark.parametrize("clip_name", CLIPS)
+def test_root_trajectory_is_scaled_to_the_body(body, anny_motions, clip_positions, clip_name):
+    """docs/motion.md, Root: the clip's root path in metres times s = body leg / clip leg
+    (in metres), so strides fit the body's legs. Both clips already face +z with y up, so no
+    axis change; frame 0 is moved above the origin and lifted by a constant, which the
+    differences to frame 0 remove."""
+    names, positions = clip_positions[clip_name]
+    table = CLIP_JOINTS[clip_name]
+    rest_joints = body.rest().joints.double().numpy()
+    body_leg_m = leg_length_of(lambda joint: rest_joints[body.joint_map[joint]])
+    # Rotations keep bone lengths, so the first frame's joints give the clip's rest lengths.
+    clip_leg_m = leg_length_of(lambda joint: positions[0, names.index(table[joint])]) * CLIP_UNIT_M
+    root_m = positions[:, 0] * CLIP_UNIT_M
+    scale = body_leg_m / clip_leg_m
+    motion = anny_motions[clip_name]
+    expected = scale * (root_m - root_m[0])
+    assert np.abs(expected).max() > 0.1, "the root travels, so a wrong scale shows"
+    np.testing.assert_allclose(motion.translation - motion.translation[0], expected, atol=TRANSLATION_TOL_M, rtol=0)
 
 
 def first_frame(motion: Motion) -> Motion:

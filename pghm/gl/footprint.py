@@ -11,11 +11,16 @@ e = sqrt(k) 1.001 + 1e-3, k = 2 ln(o / ALPHA_MIN). Since l00 = sqrt(a) and
 |x - u| <= e sqrt(a), |y - v| <= e sqrt(2 c); a and c (the diagonal of cov2d) are
 computed here from the same float32 formulas, and the box gets one more pixel for the
 shader's different rounding.
+
+Points. Drawn as a GL point instead, Gaussian i needs the square of half side
+e sqrt(max(a, c)) (the ellipse's bounding box is e sqrt(a) by e sqrt(c)); the largest such
+half side decides whether the points fit the driver's largest point size.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -25,7 +30,20 @@ Box = tuple[int, int, int, int]
 """(x, y, width, height) in pixels, x from the left, y = image row (GL row of the target)."""
 
 
-def sprite_bounds(
+@dataclass(frozen=True)
+class Extent:
+    """Where the sprites of one camera reach.
+
+    Attributes:
+        box: the pixel box covering every quad.
+        largest_point_half: the largest half side (pixels) of a point sprite's square.
+    """
+
+    box: Box
+    largest_point_half: float
+
+
+def sprite_extent(
     means: np.ndarray,
     scales: np.ndarray,
     opacities: np.ndarray,
@@ -33,8 +51,8 @@ def sprite_bounds(
     focal: tuple[float, float],
     principal: tuple[float, float],
     size: tuple[int, int],
-) -> Box | None:
-    """The pixel box covering every quad of means (N, 3), scales (N,), opacities (N,).
+) -> Extent | None:
+    """The extent of the sprites of means (N, 3), scales (N,), opacities (N,).
 
     ``focal`` = (fx, fy), ``principal`` = (cx, cy), ``size`` = (W, H). None when no
     Gaussian is drawn (all culled, or all quads outside the image).
@@ -51,7 +69,7 @@ def sprite_bounds(
     e = np.sqrt(k) * np.float32(1.001) + np.float32(1e-3)
     s2 = scales * scales
     depth = np.where(drawn, tz, np.float32(np.nan))
-    low, high = [], []
+    low, high, point_halves = [], [], []
     for t, f, c, n, factor in ((tx, focal[0], principal[0], size[0], 1.0), (ty, focal[1], principal[1], size[1], 2.0)):
         f, c = np.float32(f), np.float32(c)
         ratio = t / depth
@@ -61,13 +79,16 @@ def sprite_bounds(
         diagonal = s2 * (j_diag * j_diag + j_last * j_last) + np.float32(COV_DILATION)  # a (x), c (y)
         centre = f * ratio + c
         half = e * np.sqrt(np.float32(factor) * diagonal)
+        point_halves.append(e * np.sqrt(diagonal))
         # The shader rounds the same float32 formulas (in another order): one pixel of slack.
         lowest, highest = float(np.nanmin(centre - half)), float(np.nanmax(centre + half))
         low.append(min(max(math.floor(lowest) - 1, 0), n))
         high.append(min(max(math.ceil(highest) + 1, 0), n))
     if high[0] <= low[0] or high[1] <= low[1]:
         return None
-    return low[0], low[1], high[0] - low[0], high[1] - low[1]
+    # Culled Gaussians' halves are NaN too (their depth is), and nanmax skips them.
+    largest_point_half = float(np.nanmax(np.maximum(*point_halves)))
+    return Extent((low[0], low[1], high[0] - low[0], high[1] - low[1]), largest_point_half)
 
 
 def grow(box: Box, pixels: int, size: tuple[int, int]) -> Box:

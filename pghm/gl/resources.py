@@ -34,16 +34,22 @@ constants (one definition, in :mod:`pghm.splat`) and the texture layout."""
 
 
 def build_program(
-    ctx: moderngl.Context, vertex: str, fragment: str, precision: shaders.Precision | None = None
+    ctx: moderngl.Context,
+    vertex: str,
+    fragment: str,
+    precision: shaders.Precision | None = None,
+    defines: dict[str, int | float] | None = None,
 ) -> moderngl.Program:
     """A program from ``shaders/<vertex>.glsl`` and ``shaders/<fragment>.glsl`` with SPEC_DEFINES.
 
     ``precision`` ("float" or "double") is for shaders written with the ``real`` macro types
-    (see :mod:`shaders`): it sets their ``#version`` and defines the types.
+    (see :mod:`shaders`): it sets their ``#version`` and defines the types. ``defines`` adds
+    variant switches (e.g. ``PGHM_POINTS``).
     """
+    every = {**SPEC_DEFINES, **(defines or {})}
     return ctx.program(
-        vertex_shader=shaders.source(vertex, SPEC_DEFINES, precision),
-        fragment_shader=shaders.source(fragment, SPEC_DEFINES, precision),
+        vertex_shader=shaders.source(vertex, every, precision),
+        fragment_shader=shaders.source(fragment, every, precision),
     )
 
 

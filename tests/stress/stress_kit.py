@@ -148,6 +148,23 @@ class RunsCode:
         return (open, (self.marker, "w"))
 
 
+UNSAFE_LOAD = "import sys, torch; torch.load(sys.argv[1], weights_only=False)"
+"""What a careless reader does with an avatar file: a full unpickle."""
+UNSAFE_LOAD_TIMEOUT = 120
+"""Seconds for the child that loads unsafely (importing torch takes a few)."""
+
+
+def unsafe_load_runs_code(path: Path, marker: Path) -> bool:
+    """Whether a careless ``torch.load(path, weights_only=False)`` creates ``marker``: the positive
+    control without which "the marker never appears" would prove nothing. The load runs in a child
+    process, so what the pickle does stays there; the marker is removed afterwards."""
+    command = [sys.executable, "-c", UNSAFE_LOAD, str(path)]
+    subprocess.run(command, cwd=path.parent, capture_output=True, timeout=UNSAFE_LOAD_TIMEOUT)
+    created = marker.exists()
+    marker.unlink(missing_ok=True)
+    return created
+
+
 def bad_avatar_files(good: Path, directory: Path, marker: Path) -> dict[str, tuple[Path, str]]:
     """Every kind of bad avatar file, made from the valid ``good`` one: name -> (path, words the error names)."""
     from pghm.io.avatar import FORMAT_VERSION

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from conftest import SMALL_MODEL
 from PIL import Image
-from stress_kit import bad_avatar_files, check, cli, one_error_line
+from stress_kit import bad_avatar_files, check, cli, one_error_line, unsafe_load_runs_code
 
 from pghm.data.subject import npz_bytes
 from pghm.io.avatar import save_avatar
@@ -42,6 +42,24 @@ def files(tmp_path_factory):
         directory / "seed_motion.npz"
     )
     return good, marker, bad_avatar_files(good, directory / "bad", marker)
+
+
+@pytest.fixture(scope="module")
+def unsafe_load_ran_code(files) -> bool:
+    """Whether an unsafe load of the very file the commands get creates the marker (checked before
+    any command sees it, and the marker removed): "the marker never appears" means something only then."""
+    _, marker, bad = files
+    return unsafe_load_runs_code(bad["pickle that runs code"][0], marker)
+
+
+def test_the_code_pickle_runs_code_when_loaded_unsafely(files, unsafe_load_ran_code):
+    check(
+        "bad avatar.pt",
+        "positive control: torch.load(weights_only=False) of the pickle that runs code (child process)",
+        "its marker file is created (so its absence after the commands below is meaningful)",
+        f"marker created: {unsafe_load_ran_code}",
+        unsafe_load_ran_code,
+    )
 
 
 COMMANDS = {
@@ -74,7 +92,7 @@ COMMANDS = {
 
 
 @pytest.mark.parametrize("command", list(COMMANDS))
-def test_every_bad_avatar_through_every_command(command, files, tiny_dataset, tmp_path):
+def test_every_bad_avatar_through_every_command(command, files, unsafe_load_ran_code, tiny_dataset, tmp_path):
     _, marker, bad = files
     for kind, (path, words) in bad.items():
         out = tmp_path / kind.replace(" ", "_")
@@ -93,9 +111,9 @@ def test_every_bad_avatar_through_every_command(command, files, tiny_dataset, tm
     check(
         "bad avatar.pt",
         f"{command}: the pickle's code",
-        "never runs (its marker file is never created)",
-        "marker absent" if not marker.exists() else "MARKER CREATED",
-        not marker.exists(),
+        "never runs (its marker file is never created; an unsafe load of the same file creates it)",
+        f"marker {'CREATED' if marker.exists() else 'absent'}; unsafe load created it: {unsafe_load_ran_code}",
+        unsafe_load_ran_code and not marker.exists(),
     )
 
 

@@ -1,15 +1,18 @@
 """Nothing lost: every save is atomic, and kill -9 at any moment leaves the last complete file.
 
-1. Every writer of pghm and the viewer, run under a spy on ``open``/``os.open``/``os.replace``:
-   the destination is never opened for writing, only a hidden temporary beside it, which
-   is then renamed over it. A static scan of pghm/ and viewer/ finds no other write call.
+1. Every writer of pghm and the viewer, run under a spy on ``open``/``os.open``/``os.fsync``/
+   ``os.replace``: the destination is never opened for writing, only a hidden temporary beside
+   it, which is fsynced and then renamed over it. A static scan of pghm/ and viewer/ finds no
+   other write call.
 2. A child process saves two versions of an avatar, a 50 MB .ply, a PNG and a motion file
    over and over; it is killed with SIGKILL the moment a temporary file shows a save in
    progress. Every file must then load and equal the old or the new version, never a mix.
 3. ``pghm train-prior`` and ``pghm fit`` (real subprocesses, tiny data set, 64 x 64 UV maps,
    a checkpoint every step) are killed with SIGKILL at random moments and once in the middle
-   of a checkpoint save; the checkpoint on disk loads, and ``--resume`` finishes the run with
-   the parameters an uninterrupted run reaches.
+   of a checkpoint save; each kill must land before the run ends (exit status -SIGKILL, the
+   checkpoint short of the last step; a run that finished first is retried with an earlier
+   kill); the checkpoint on disk loads, and ``--resume`` finishes the run with the parameters
+   an uninterrupted run reaches.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -35,12 +39,15 @@ from stress_kit import HERE, ROOT, check, output_versions
 
 
 class WriteSpy:
-    """Records every path opened for writing and every rename, through the real functions."""
+    """Records every path opened for writing, every fsync and every rename, through the real functions."""
 
     def __init__(self, monkeypatch) -> None:
         self.opened: list[Path] = []
-        self.renamed: list[Path] = []
-        real_open, real_os_open, real_replace = builtins.open, os.open, os.replace
+        self.synced: list[Path] = []
+        self.renames: list[tuple[Path, Path, int]] = []
+        """(source, destination, how many fsyncs came before the rename)."""
+        self.descriptors: dict[int, Path] = {}
+        real_open, real_os_open, real_replace, real_fsync = builtins.open, os.open, os.replace, os.fsync
 
         def spy_open(file, mode="r", *args, **kwargs):
             if isinstance(file, (str, bytes, os.PathLike)) and any(flag in mode for flag in "wax+"):
@@ -50,16 +57,33 @@ class WriteSpy:
         def spy_os_open(path, flags, *args, **kwargs):
             if flags & (os.O_WRONLY | os.O_RDWR | os.O_CREAT | os.O_APPEND | os.O_TRUNC):
                 self.opened.append(Path(os.fsdecode(path)))
-            return real_os_open(path, flags, *args, **kwargs)
+            fd = real_os_open(path, flags, *args, **kwargs)
+            self.descriptors[fd] = Path(os.fsdecode(path))
+            return fd
+
+        def spy_fsync(fd):
+            if fd in self.descriptors:
+                self.synced.append(self.descriptors[fd])
+            return real_fsync(fd)
 
         def spy_replace(source, destination, *args, **kwargs):
-            self.renamed.append(Path(os.fsdecode(destination)))
+            self.renames.append((Path(os.fsdecode(source)), Path(os.fsdecode(destination)), len(self.synced)))
             return real_replace(source, destination, *args, **kwargs)
 
         monkeypatch.setattr(builtins, "open", spy_open)
         monkeypatch.setattr(io, "open", spy_open)
         monkeypatch.setattr(os, "open", spy_os_open)
+        monkeypatch.setattr(os, "fsync", spy_fsync)
         monkeypatch.setattr(os, "replace", spy_replace)
+
+    def _synced_before_rename(self, output: Path) -> bool:
+        """Whether the file renamed to ``output`` was fsynced before that rename (else a crash
+        right after the rename could leave an empty or partial file under the final name)."""
+        return any(
+            destination.resolve() == output.resolve()
+            and source.resolve() in {p.resolve() for p in self.synced[:synced_before]}
+            for source, destination, synced_before in self.renames
+        )
 
     def verdict(self, outputs: list[Path], root: Path) -> tuple[bool, str]:
         """Whether ``outputs`` were written atomically and nothing under ``root`` was written in place
@@ -68,13 +92,16 @@ class WriteSpy:
         inside = [p for p in self.opened if p.resolve().is_relative_to(root.resolve())]
         not_temporary = [p for p in inside if not (p.name.startswith(".") and ".tmp" in p.name)]
         missing = [o for o in outputs if not o.is_file()]
-        unrenamed = [o for o in outputs if o.resolve() not in {r.resolve() for r in self.renamed}]
-        ok = not (direct or not_temporary or missing or unrenamed)
+        renamed = {destination.resolve() for _, destination, _ in self.renames}
+        unrenamed = [o for o in outputs if o.resolve() not in renamed]
+        unsynced = [o for o in outputs if not self._synced_before_rename(o)]
+        ok = not (direct or not_temporary or missing or unrenamed or unsynced)
         if ok:
-            return True, f"{len(outputs)} file(s), each written to a .tmp sibling and renamed"
+            return True, f"{len(outputs)} file(s), each written to a .tmp sibling, fsynced, then renamed"
         return (
             False,
-            f"direct writes {direct}, non-temporary {not_temporary}, missing {missing}, not renamed {unrenamed}",
+            f"direct writes {direct}, non-temporary {not_temporary}, missing {missing}, not renamed {unrenamed}, "
+            f"not fsynced before the rename {unsynced}",
         )
 
 
@@ -193,7 +220,8 @@ def test_every_writer_goes_through_a_temporary_file(tiny_dataset, tmp_path, monk
     )
 
 
-def test_an_mp4_is_finished_before_it_replaces_the_old_one(tmp_path):
+def test_an_mp4_is_finished_before_it_replaces_the_old_one(tmp_path, monkeypatch):
+    """The encoder writes a temporary file itself (PendingFile), so the spy sees the commit only."""
     import imageio_ffmpeg
 
     from pghm.render import Mp4Sink
@@ -210,7 +238,10 @@ def test_an_mp4_is_finished_before_it_replaces_the_old_one(tmp_path):
     for _ in range(3):
         finished.write(frame)
     before_close = path.read_bytes()
-    finished.close()
+    with monkeypatch.context() as patch:
+        spy = WriteSpy(patch)
+        finished.close()
+    committed, commit = spy.verdict([path], tmp_path)
     reader = imageio_ffmpeg.read_frames(str(path))
     next(reader)
     frames = sum(1 for _ in reader)
@@ -218,10 +249,10 @@ def test_an_mp4_is_finished_before_it_replaces_the_old_one(tmp_path):
     check(
         "nothing lost",
         "render MP4 over an existing file",
-        "old file untouched while encoding and on abort; a complete video after close",
+        "old file untouched while encoding and on abort; a complete video after close, fsynced before its rename",
         f"old kept: {kept and before_close == b'the old video'}, "
-        f"new video frames: {frames}, temporaries left: {len(leftovers)}",
-        kept and before_close == b"the old video" and frames == 3 and not leftovers,
+        f"new video frames: {frames}, temporaries left: {len(leftovers)}; commit: {commit}",
+        kept and before_close == b"the old video" and frames == 3 and not leftovers and committed,
     )
 
 
@@ -315,6 +346,7 @@ def test_kill_during_a_save_over_an_existing_file(target, tmp_path):
     finally:
         child.kill()
         child.wait()
+    saving &= child.returncode == -signal.SIGKILL  # the save loop never ends by itself: anything else is a crash
     temporaries = [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
     outcomes = []
     intact = True
@@ -332,7 +364,8 @@ def test_kill_during_a_save_over_an_existing_file(target, tmp_path):
         "nothing lost",
         f"kill -9 while {target} is being saved over the old one",
         "every file loads and equals the old or the new version",
-        f"killed mid-save: {saving} ({len(temporaries)} stale temporary file left); " + ", ".join(outcomes),
+        f"killed mid-save: {saving} (exit {child.returncode}, {len(temporaries)} stale temporary file left); "
+        + ", ".join(outcomes),
         saving and intact,
     )
 
@@ -359,27 +392,68 @@ def _command(*args) -> list[str]:
     return [sys.executable, "-m", "pghm.cli.main", *map(str, args)]
 
 
-def _run_until_killed(command: list[str], checkpoint: Path, how: str, rng: random.Random) -> str:
-    """Start ``command`` and SIGKILL it once it has written a checkpoint: after a random delay, or
-    the moment a checkpoint save is in progress (its temporary file appears). Returns what happened."""
+KILL_ATTEMPTS = 4
+"""Runs per kill at most: a run that ends before its kill is restarted from the same checkpoint."""
+MAX_KILL_DELAY = 1.0
+"""Seconds: a random kill comes up to this long after the first fresh checkpoint; halved on each retry."""
+
+
+@dataclass
+class Kill:
+    landed: bool
+    """SIGKILL ended the process (exit status -SIGKILL) before the run completed."""
+    description: str
+
+
+def _temporaries(checkpoint: Path) -> set[str]:
+    """Names of the checkpoint's temporary files: a save in progress, or one a kill interrupted."""
+    return {p.name for p in checkpoint.parent.iterdir() if p.name.startswith(f".{checkpoint.name}.")}
+
+
+def _kill_once(command: list[str], checkpoint: Path, how: str, delay: float) -> tuple[int, float]:
+    """Start ``command`` and SIGKILL it once it has written a checkpoint: ``delay`` s later ("random"),
+    or the moment a new checkpoint save is in progress ("mid-save"). Returns (exit status, seconds)."""
     before = checkpoint.stat().st_mtime_ns if checkpoint.exists() else None
+    stale = _temporaries(checkpoint)  # left by an earlier kill: not a save in progress
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     started = time.monotonic()
     ended = lambda: process.poll() is not None  # noqa: E731
-    saving = lambda: any(p.name.startswith(f".{checkpoint.name}.") for p in checkpoint.parent.iterdir())  # noqa: E731
     try:
         fresh = lambda: checkpoint.exists() and checkpoint.stat().st_mtime_ns != before  # noqa: E731
         assert _wait_for(lambda: fresh() or ended(), timeout=300, poll=0.01), "no checkpoint was written"
         if how == "random":
-            time.sleep(rng.uniform(0.0, 1.0))
+            time.sleep(delay)
         else:
+            saving = lambda: bool(_temporaries(checkpoint) - stale)  # noqa: E731
             assert _wait_for(lambda: saving() or ended(), timeout=300), "no checkpoint save was seen in progress"
-        finished = ended()
         process.send_signal(signal.SIGKILL)
     finally:
         process.kill()
         process.wait()
-    return f"{'finished before the kill' if finished else 'killed'} at {time.monotonic() - started:.1f} s ({how})"
+    return process.returncode, time.monotonic() - started
+
+
+def _run_until_killed(command: list[str], checkpoint: Path, how: str, rng: random.Random, completed) -> Kill:
+    """Kill a run of ``command`` (see :func:`_kill_once`) and make sure the kill, not the run's end,
+    stopped it: exit status -SIGKILL and a checkpoint for which ``completed(payload)`` is false. A run
+    that got there first is restarted from the checkpoint it started from, with an earlier random
+    kill, up to KILL_ATTEMPTS times."""
+    from pghm.train.loop import load_checkpoint
+
+    snapshot = checkpoint.read_bytes() if checkpoint.exists() else None
+    bound, outcomes = MAX_KILL_DELAY, []
+    for attempt in range(1, KILL_ATTEMPTS + 1):
+        if snapshot is None:
+            checkpoint.unlink(missing_ok=True)
+        else:
+            checkpoint.write_bytes(snapshot)
+        code, seconds = _kill_once(command, checkpoint, how, rng.uniform(0.0, bound))
+        done = checkpoint.exists() and completed(load_checkpoint(checkpoint))
+        if code == -signal.SIGKILL and not done:
+            return Kill(True, f"killed (exit {code}) at {seconds:.1f} s ({how}, run {attempt})")
+        outcomes.append(f"exit {code}{', run completed' if done else ''}")
+        bound /= 2
+    return Kill(False, f"NO KILL LANDED in {KILL_ATTEMPTS} runs ({how}): " + "; ".join(outcomes))
 
 
 def _same_parameters(a: dict, b: dict) -> float:
@@ -395,6 +469,14 @@ scale, so equal up to float reassociation in threaded kernels (test_train's resu
 1e-6 on 6 steps of a smaller model; this one is larger, 1e-5 leaves room)."""
 
 
+def _prior_completed(payload: dict) -> bool:
+    return payload["state"]["step"] >= PRIOR_STEPS
+
+
+def _fit_completed(payload: dict) -> bool:
+    return payload["extra"]["stage"] == len(FIT_STAGES) and payload["state"]["step"] >= FIT_STAGES[-1]
+
+
 @pytest.fixture(scope="module")
 def prior_run(tiny_dataset, tmp_path_factory):
     """train-prior killed twice (at a random moment, then mid-checkpoint), resumed to the end."""
@@ -405,14 +487,15 @@ def prior_run(tiny_dataset, tmp_path_factory):
     out = tmp_path_factory.mktemp("killed_prior") / "prior.pt"
     checkpoint = out.with_name(out.name + ".ckpt")
     base = _command("train-prior", tiny_dataset, "--out", out, "--steps", PRIOR_STEPS, *PRIOR_ARGS)
-    events = []
+    kills, events = [], []
     for attempt, how in enumerate(("random", "mid-save")):
-        happened = _run_until_killed(base + (["--resume"] if attempt else []), checkpoint, how, rng)
+        kill = _run_until_killed(base + (["--resume"] if attempt else []), checkpoint, how, rng, _prior_completed)
         step = load_checkpoint(checkpoint)["state"]["step"]  # must load: the last complete checkpoint
-        events.append(f"{happened}: checkpoint loads at step {step}")
+        kills.append(kill)
+        events.append(f"{kill.description}: checkpoint loads at step {step}")
     resumed = subprocess.run(base + ["--resume"], capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
-    return out, events, load_avatar(out)
+    return out, all(kill.landed for kill in kills), events, load_avatar(out)
 
 
 def test_kill_9_during_train_prior_then_resume(prior_run, tiny_dataset, tmp_path):
@@ -420,7 +503,7 @@ def test_kill_9_during_train_prior_then_resume(prior_run, tiny_dataset, tmp_path
     from pghm.train.loop import LoopConfig
     from pghm.train.prior import PriorConfig, train_prior
 
-    out, events, resumed = prior_run
+    out, landed, events, resumed = prior_run
     config = PriorConfig(
         model=ModelConfig(uv_resolution=64, latent_channels=8),
         loop=LoopConfig(steps=PRIOR_STEPS, images_per_shard=2, checkpoint_every=0),
@@ -431,10 +514,10 @@ def test_kill_9_during_train_prior_then_resume(prior_run, tiny_dataset, tmp_path
     check(
         "nothing lost",
         "kill -9 during pghm train-prior, twice, then --resume",
-        f"last checkpoint loads; resumed run ends at step {PRIOR_STEPS} with the uninterrupted run's "
-        f"parameters (max diff <= {RESUME_TOLERANCE:g})",
+        f"each kill lands before the run ends; last checkpoint loads; resumed run ends at step {PRIOR_STEPS} "
+        f"with the uninterrupted run's parameters (max diff <= {RESUME_TOLERANCE:g})",
         "; ".join(events) + f"; resumed to step {resumed.metadata['steps']}, max parameter diff {difference:.1e}",
-        resumed.metadata["steps"] == PRIOR_STEPS and difference <= RESUME_TOLERANCE,
+        landed and resumed.metadata["steps"] == PRIOR_STEPS and difference <= RESUME_TOLERANCE,
     )
 
 
@@ -443,7 +526,7 @@ def test_kill_9_during_fit_then_resume(prior_run, tiny_dataset, tmp_path):
     from pghm.train.fit import FitConfig, fit
     from pghm.train.loop import LoopConfig, load_checkpoint
 
-    prior, _, _ = prior_run
+    prior, _, _, _ = prior_run
     subject = tiny_dataset / "subject_000"
     out = tmp_path / "avatar.pt"
     checkpoint = out.with_name(out.name + ".ckpt")
@@ -463,9 +546,9 @@ def test_kill_9_during_fit_then_resume(prior_run, tiny_dataset, tmp_path):
         "1",
     )
     rng = random.Random(9)
-    happened = _run_until_killed(base, checkpoint, "random", rng)
+    kill = _run_until_killed(base, checkpoint, "random", rng, _fit_completed)
     payload = load_checkpoint(checkpoint)
-    event = f"{happened}: checkpoint loads (stage {payload['extra']['stage']}, step {payload['state']['step']})"
+    event = f"{kill.description}: checkpoint loads (stage {payload['extra']['stage']}, step {payload['state']['step']})"
     resumed = subprocess.run(base + ["--resume"], capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     avatar = load_avatar(out)
@@ -482,7 +565,8 @@ def test_kill_9_during_fit_then_resume(prior_run, tiny_dataset, tmp_path):
     check(
         "nothing lost",
         "kill -9 during pghm fit, then --resume",
-        f"last checkpoint loads; resumed avatar equals an uninterrupted fit (max diff <= {RESUME_TOLERANCE:g})",
+        f"the kill lands before the run ends; last checkpoint loads; resumed avatar equals an uninterrupted "
+        f"fit (max diff <= {RESUME_TOLERANCE:g})",
         f"{event}; max parameter diff {difference:.1e}",
-        difference <= RESUME_TOLERANCE,
+        kill.landed and difference <= RESUME_TOLERANCE,
     )
