@@ -83,6 +83,31 @@ def fit_config(stage1: int, stage2: int, network_lr: float = FitConfig.network_l
     )
 
 
+TOO_HIGH = 10
+"""The issue's case: every learning rate 10x its default."""
+
+
+def test_learning_rates_ten_times_the_defaults_leave_no_nan(tiny_dataset, tmp_path, caplog):
+    """train-prior at 10x every default rate: parameters stay finite, and any step the guard
+    skips is logged (with this model 10x never overflows; the next test makes it)."""
+    caplog.set_level(logging.WARNING)
+    hot = config(
+        4,
+        network_lr=TOO_HIGH * PriorConfig.network_lr,
+        latent_lr=TOO_HIGH * PriorConfig.latent_lr,
+        pose_lr=TOO_HIGH * PriorConfig.pose_lr,
+    )
+    avatar = train_prior(tiny_dataset, tmp_path / "hot.pt", hot)
+    skipped, lines = avatar.metadata["skipped_steps"], guard_lines(caplog)
+    check(
+        AREA,
+        f"pghm train-prior, every learning rate {TOO_HIGH}x its default, 4 steps",
+        "no NaN parameter left; any skipped step logged",
+        f"parameters finite: {all_finite(avatar)}; skipped steps {skipped} ({len(lines)} logged)",
+        all_finite(avatar) and skipped == len(lines),
+    )
+
+
 def test_a_diverging_learning_rate_is_skipped_lowered_and_logged(tiny_dataset, tiny_prior, tmp_path, caplog):
     """The truth for "rate lowered" is the optimizer's own state in the last checkpoint."""
     caplog.set_level(logging.WARNING)
