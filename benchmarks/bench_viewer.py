@@ -32,7 +32,7 @@ import numpy as np
 import torch
 from bench_gl import body_scene, summary
 from bench_gl import orbit_camera as body_orbit_camera
-from common import print_table, setup_threads, write_json
+from common import load_average, print_table, setup_threads, write_json
 
 from pghm.data.open_motion import open_motion
 from pghm.gl import SpriteRenderer, driver_info, headless_context
@@ -50,10 +50,6 @@ ACCURACY_POSES = (("rest", 0), ("walk", 20), ("squat", 60))
 ACCURACY_VIEWS = 8
 FLIP = 2e-3
 """The GL-vs-CPU max-error bar; pixels above it are cut-off flips."""
-
-
-def load_average() -> float:
-    return os.getloadavg()[0]
 
 
 def the_avatar():

@@ -8,6 +8,7 @@ target machine has (2), with ratios against a baseline measured in the same run.
 from __future__ import annotations
 
 import json
+import os
 import platform
 import statistics
 import time
@@ -45,6 +46,12 @@ def machine() -> dict:
         "threads": torch.get_num_threads(),
         "cpu": platform.processor() or platform.machine(),
     }
+
+
+def load_average() -> float:
+    """The 1-minute load average: a time measured while other jobs share the 2 cores is
+    slower, and the reader of a table needs to know."""
+    return os.getloadavg()[0]
 
 
 def print_table(rows: list[dict], columns: list[str] | None = None) -> None:

@@ -25,10 +25,11 @@ Primitive. A sprite is one GL point (a square of side 2 e sqrt(max(a, c)), e = t
 footprint's radius in standard deviations) when every square fits the driver's largest point
 size, else one instanced quad (a parallelogram circumscribing the footprint ellipse). Both
 cover the footprint, the fragment shader applies the exact cut-off, so the image is the same;
-llvmpipe draws points ~20% faster (docs/viewer.md). GL clips points by their centre, hence
+llvmpipe draws points 28-34% faster (docs/viewer.md). GL clips points by their centre, hence
 the viewport guard band (``shaders/gaussian_sprite.vert.glsl``).
 
-Orientation. Quads are placed at NDC = 2 (u, v) / (W, H) - 1 with no flip, so GL window
+Orientation. Pixel p is placed at NDC = 2 (p + guard) / ((W, H) + 2 guard) - 1 with no flip
+(guard = 0 for quads), so GL window
 row r (bottom row 0) holds image row r and gl_FragCoord.xy = (j + 0.5, i + 0.5) is the
 spec's pixel centre. Read-back returns GL row 0 first, i.e. image row 0 (the top) first;
 only presentation in a window flips (``draw(..., flip_y=True)``).
@@ -334,10 +335,10 @@ class SpriteRenderer:
         self._release_gaussian_textures()
         if self._sorter is not None:
             self._sorter.release()
-        for resource in (self._sprites_vao, self._points_vao, self._composite_vao, self._sprites, self._points):
+        programs = (self._sprites, self._points, self._composite)
+        for resource in (self._sprites_vao, self._points_vao, self._composite_vao, *programs):
             if resource is not None:
                 resource.release()
-        self._composite.release()
 
     def __enter__(self) -> SpriteRenderer:
         return self
@@ -380,7 +381,7 @@ class SpriteRenderer:
         if box is not None:
             fbo.use()
             fbo.clear(0.0, 0.0, 0.0, 0.0, viewport=grow(box, clear_margin, size))
-            program, vao, guard = self._sprite_pass(extent, size)
+            primitive, program, vao, guard = self._sprite_pass(extent, size)
             self.ctx.viewport = (-guard, -guard, cam.width + 2 * guard, cam.height + 2 * guard)
             self.ctx.scissor = box
             self.ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
@@ -397,12 +398,11 @@ class SpriteRenderer:
             program["principal"].write(np.array([cam.cx, cam.cy], uniform_dtype).tobytes())
             program["image_size"] = (float(cam.width), float(cam.height))
             program["guard"] = float(guard)
-            if vao is self._points_vao:
+            if primitive == "points":
                 vao.render(moderngl.POINTS, vertices=self._count)
-                timings.primitive = "points"
             else:
                 vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._count)
-                timings.primitive = "quads"
+            timings.primitive = primitive
             self.ctx.disable(moderngl.BLEND | moderngl.PROGRAM_POINT_SIZE)
             self.ctx.scissor = None
             self.ctx.viewport = (0, 0, *size)
@@ -410,8 +410,11 @@ class SpriteRenderer:
         timings.draw_ms = _ms_since(start)
         return timings, box
 
-    def _sprite_pass(self, extent: Extent, size: tuple[int, int]) -> tuple[moderngl.Program, moderngl.VertexArray, int]:
-        """Program, vertex array and viewport guard (pixels) of this frame's sprite pass.
+    def _sprite_pass(
+        self, extent: Extent, size: tuple[int, int]
+    ) -> tuple[str, moderngl.Program, moderngl.VertexArray, int]:
+        """Primitive ("points" or "quads"), program, vertex array and viewport guard (pixels)
+        of this frame's sprite pass.
 
         Points when the renderer may use them, every square fits the driver's largest point
         size and the guarded viewport fits its largest viewport; quads otherwise (no guard).
@@ -421,8 +424,8 @@ class SpriteRenderer:
             fits_point = 2.0 * extent.largest_point_half <= self._largest_point
             fits_viewport = all(n + 2 * guard <= limit for n, limit in zip(size, self._largest_viewport))
             if fits_point and fits_viewport:
-                return self._points, self._points_vao, guard
-        return self._sprites, self._sprites_vao, 0
+                return "points", self._points, self._points_vao, guard
+        return "quads", self._sprites, self._sprites_vao, 0
 
     def _bounds(self, cam: _Pinhole) -> Extent | None:
         """The sprites' extent, recomputed when the camera or the Gaussians change."""

@@ -37,14 +37,11 @@ def load_torch_file(path: Path) -> object:
             raise TorchFileError("not a torch.save zip archive (random or foreign bytes?)")
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as error:
-        text = str(error)
-        if "Unsupported global" in text or "GLOBAL" in text:
+    except Exception as error:  # noqa: BLE001 - the weights-only unpickler raises many types on damaged bytes
+        if isinstance(error, pickle.UnpicklingError) and ("Unsupported global" in str(error) or "GLOBAL" in str(error)):
             raise TorchFileError(
                 "refusing to load objects other than tensors and plain data (the file may contain code)"
             ) from None
-        raise TorchFileError(f"truncated or corrupted: {_first_line(error)}") from None
-    except Exception as error:  # noqa: BLE001 - the weights-only unpickler raises many types on damaged bytes
         raise TorchFileError(f"truncated or corrupted: {_first_line(error)}") from None
 
 
