@@ -54,7 +54,8 @@ def test_round_trip(tmp_path, kind):
         assert torch.equal(loaded.latent, avatar.latent)
     else:
         assert torch.equal(loaded.shapes, avatar.shapes) and loaded.latent is None
-        torch.testing.assert_close(loaded.identity_map(2), avatar.model.decode_identity(2))
+        # Same mode as the loaded model: eval lays the convs out channels-last, which rounds differently.
+        torch.testing.assert_close(loaded.identity_map(2), avatar.model.eval().decode_identity(2))
     assert not list(tmp_path.glob(".*tmp"))  # no temporary file left behind
 
 

@@ -183,6 +183,24 @@ def test_shared_poses_equal_repeated_poses(body, geometry):
             torch.testing.assert_close(getattr(a, field), getattr(b, field), atol=1e-6, rtol=0)
 
 
+def test_inference_layout_gives_the_training_layout_outputs(body, geometry):
+    """Eval mode stores the conv weights channels-last (faster inference), train mode NCHW;
+    the outputs agree to float32 rounding (the two layouts sum in different orders)."""
+    model = PGHM(SMALL, num_identities=1)
+    randomize_heads(model)
+    pose, centre = random_pose(body, seed=7), torch.tensor([[0.4, 0.3, 2.5]])
+    spatial = [m for m in model.modules() if isinstance(m, torch.nn.Conv2d) and m.kernel_size != (1, 1)]
+    with torch.no_grad():
+        trained = model.train()(model.decode_identity(0), geometry, pose, centre)
+        assert all(c.weight.is_contiguous() for c in spatial)
+        inferred = model.eval()(model.decode_identity(0), geometry, pose, centre)
+        assert all(c.weight.is_contiguous(memory_format=torch.channels_last) for c in spatial)
+        assert not any(c.weight.is_contiguous() for c in spatial)
+    for a, b in ((trained.static, inferred.static), (trained.dynamic, inferred.dynamic)):
+        for field in ("means", "scales", "colors"):
+            torch.testing.assert_close(getattr(a, field), getattr(b, field), atol=1e-5, rtol=0)
+
+
 def kabsch(source: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """(R, t) minimising |R source + t - target| over (N, 3) point sets (least-squares rigid fit)."""
     mu_s, mu_t = source.mean(0), target.mean(0)

@@ -75,6 +75,13 @@ COMPONENTS = (
 """Submodules whose runs :attr:`PGHM.run_counts` counts (to prove what a cached update skips)."""
 
 
+def set_conv_layout(module: nn.Module, layout: torch.memory_format) -> None:
+    """Store every Conv2d weight of ``module`` in ``layout`` (same values, other strides)."""
+    for conv in module.modules():
+        if isinstance(conv, nn.Conv2d):
+            conv.weight.data = conv.weight.data.contiguous(memory_format=layout)
+
+
 @dataclass
 class IdentityFeatures:
     """What depends only on the identity map: the E_u pyramid and (multi-head) D_static's maps.
@@ -190,6 +197,18 @@ class PGHM(nn.Module):
             self.run_counts[name] += 1
 
         return hook
+
+    def train(self, mode: bool = True) -> PGHM:
+        """Set training or inference mode, and lay the convolution weights out for it.
+
+        Inference runs every convolution channels-last (NHWC), which oneDNN executes about
+        20 % faster on this CPU (benchmarks/bench_model.py, "layout" rows); the activations
+        follow the weights' layout. Training keeps the default NCHW, whose backward pass is
+        faster. The values are the same either way; only the strides differ.
+        """
+        super().train(mode)
+        set_conv_layout(self, torch.contiguous_format if mode else torch.channels_last)
+        return self
 
     @property
     def num_identities(self) -> int:
