@@ -88,11 +88,8 @@ def bent_frames(subject: Path) -> list[int]:
 
 
 def metrics(avatar_path: Path, subject: Path, split: str = NOVEL_POSE, images: list[int] | None = None) -> dict:
-    result = evaluate(avatar_path, subject, split=split, true_poses=True)
-    keep = [k for k, i in enumerate(result.images) if images is None or i in images]
-    psnr = [result.psnr[k] for k in keep]
-    ssim = [result.ssim[k] for k in keep]
-    return {"psnr": float(np.mean(psnr)), "ssim": float(np.mean(ssim)), "images": len(keep)}
+    result = evaluate(avatar_path, subject, split=split, true_poses=True, images=images)
+    return {"psnr": float(np.mean(result.psnr)), "ssim": float(np.mean(result.ssim)), "images": len(result.images)}
 
 
 def main() -> None:

@@ -174,3 +174,19 @@ def test_cli_style_failure_in_a_subprocess(tmp_path):
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.returncode == 2
     assert result.stderr.count("\n") == 1 and "pghm: error:" in result.stderr
+
+
+def test_member_of_a_prior_is_that_identity():
+    """A prior's member i renders as identity i: its decoded map and its own shape, not identity 0's."""
+    from pghm.io.avatar import avatar_geometry
+
+    prior = make_avatar("prior")
+    member = prior.member(2)
+    assert member.kind == "avatar" and member.shapes is None
+    assert torch.equal(member.identity_map(), prior.identity_map(2))
+    assert torch.equal(member.shape_of(), prior.shapes[2]) and not torch.equal(prior.shapes[2], prior.shapes[0])
+    assert torch.equal(avatar_geometry(member).shape, prior.shapes[2])
+    with pytest.raises(Exception, match="outside the prior's 3 identities"):
+        prior.member(3)
+    with pytest.raises(Exception, match="this is an avatar"):
+        member.member(0)

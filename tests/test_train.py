@@ -10,6 +10,7 @@ import pytest
 import torch
 from conftest import TINY_MODEL
 
+from pghm.errors import PghmError
 from pghm.model import ModelConfig
 from pghm.train.data import TrainingData
 from pghm.train.fit import FitConfig, fit, network_parameters
@@ -141,6 +142,13 @@ def test_eval_of_a_real_avatar_writes_reports(tiny_dataset, prior_file, tmp_path
     result = evaluate(avatar, tiny_dataset / "subject_000", tmp_path / "r.json", tmp_path / "s.png")
     summary = result.summary()
     assert 5 < summary["psnr"] < 60 and 0 < summary["ssim"] < 1
+    # A chosen subset gives those images' own metrics, in the order asked.
+    subset = [result.images[-1], result.images[0]]
+    part = evaluate(avatar, tiny_dataset / "subject_000", images=subset)
+    assert part.images == subset
+    assert part.psnr == pytest.approx([result.psnr[-1], result.psnr[0]], abs=1e-5)
+    with pytest.raises(PghmError, match="not in the subject's 'test' split"):
+        evaluate(avatar, tiny_dataset / "subject_000", images=[10**6])
 
 
 def test_learning_rate_ten_times_too_high_leaves_no_nan(tiny_dataset, tmp_path, caplog):

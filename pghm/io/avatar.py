@@ -78,6 +78,20 @@ class Avatar:
         self._check_identity(index)
         return self.shapes[index]
 
+    def member(self, index: int) -> Avatar:
+        """Identity ``index`` of a prior as an avatar: its decoded identity map as the personal
+        latent and its own shape (to evaluate how well the prior fits the people it learned)."""
+        if self.kind != "prior":
+            raise PghmError("member() picks an identity of a prior; this is an avatar")
+        return Avatar(
+            model=self.model,
+            kind="avatar",
+            body_name=self.body_name,
+            shape=self.shape_of(index),
+            latent=self.identity_map(index),
+            metadata={**self.metadata, "prior_identity": index},
+        )
+
     def _check_identity(self, index: int) -> None:
         count = self.model.num_identities
         try:

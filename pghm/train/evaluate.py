@@ -84,12 +84,14 @@ def evaluate(
     split: str = "test",
     body_model_path: str | None = None,
     true_poses: bool = False,
+    images: list[int] | None = None,
 ) -> EvalResult:
     """Metrics of ``avatar`` on the ``split`` images of the subject; optional JSON and PNG outputs.
 
     Args:
         true_poses: render with a synthetic subject's exact poses rather than the stored
             estimates (measures appearance apart from pose error).
+        images: evaluate only these image indices of the split (None: all of them).
     """
     avatar = avatar if isinstance(avatar, Avatar) else load_avatar(avatar)
     if avatar.kind != "avatar":
@@ -97,6 +99,11 @@ def evaluate(
     data = TrainingData(subject_dir, split=split, true_poses=true_poses)
     lpips = load_lpips()
     indices = [int(i) for i in data.images[0]]
+    if images is not None:
+        outside = sorted(set(images) - set(indices))
+        if outside:
+            raise PghmError(f"images {outside[:5]} are not in the subject's '{split}' split")
+        indices = [int(i) for i in images]
     strip_at = set(indices[:: max(1, len(indices) // STRIP_FRAMES)][:STRIP_FRAMES])
     result = EvalResult([], [], [] if lpips is not None else None, [])
     rows = []
