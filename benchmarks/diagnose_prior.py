@@ -8,7 +8,7 @@ was trained on, and where personalised avatars lose on the held-out subject.
    (generalisation), the novel poses split into the walk continued and the other motion.
 3. A picture: ground truth | render | error of the first novel-pose frames, per avatar.
 
-    python benchmarks/diagnose_prior.py --prior assets/prior.pt --data DATA --subject SUBJECT \\
+    python benchmarks/diagnose_prior.py --prior "3k steps"=assets/prior.pt --data DATA --subject SUBJECT \\
         --avatar "prior + fit"=assets/avatar.pt --avatar scratch=WORK/scratch.pt
 
 Writes docs/prior_diagnosis.md and docs/prior_diagnosis.png.
@@ -22,15 +22,15 @@ from pathlib import Path
 
 import numpy as np
 from common import DOCS, setup_threads
-from PIL import Image
+from PIL import Image, ImageDraw
 
 from pghm.io.avatar import Avatar, load_avatar
 from pghm.train.data import TrainingData
-from pghm.train.evaluate import evaluate
+from pghm.train.evaluate import STRIP_FRAMES, evaluate
 
 TRAIN_STRIDE = 5
 """Evaluate every this-many-th training image (the fit is measured, not every frame)."""
-STRIP_ROWS = 2
+STRIP_ROWS = 1
 """Novel-pose frames shown per avatar in the picture."""
 
 
@@ -40,18 +40,29 @@ def split_psnr(avatar: Avatar, subject: Path, split: str, stride: int = 1) -> li
     return evaluate(avatar, subject, split=split, true_poses=True, images=indices).psnr
 
 
-def prior_rows(prior: Avatar, data: Path) -> list[str]:
+def prior_table(priors: dict[str, Avatar], data: Path) -> list[str]:
+    """Rows: identities; columns: train and held-out PSNR under each prior ("-" past its bank)."""
     subjects = sorted(p for p in data.iterdir() if (p / "cameras.npz").is_file())
-    rows, train_all, test_all = [], [], []
-    for index in range(prior.model.num_identities):
-        member = prior.member(index)
-        train = float(np.mean(split_psnr(member, subjects[index], "train", TRAIN_STRIDE)))
-        test = float(np.mean(split_psnr(member, subjects[index], "test")))
-        train_all.append(train)
-        test_all.append(test)
-        rows.append(f"| {subjects[index].name} | {train:.2f} | {test:.2f} |")
-    rows.append(f"| **mean** | **{np.mean(train_all):.2f}** | **{np.mean(test_all):.2f}** |")
-    return rows
+    columns = {
+        label: [
+            (
+                float(np.mean(split_psnr(prior.member(i), subjects[i], "train", TRAIN_STRIDE))),
+                float(np.mean(split_psnr(prior.member(i), subjects[i], "test"))),
+            )
+            for i in range(prior.model.num_identities)
+        ]
+        for label, prior in priors.items()
+    }
+    header = " | ".join(f"{label}: train | {label}: held out" for label in priors)
+    lines = [f"| identity | {header} |", "|---" * (1 + 2 * len(priors)) + "|"]
+    for i in range(max(len(c) for c in columns.values())):
+        cells = " | ".join(f"{c[i][0]:.2f} | {c[i][1]:.2f}" if i < len(c) else "- | -" for c in columns.values())
+        lines.append(f"| {subjects[i].name} | {cells} |")
+    means = " | ".join(
+        f"**{np.mean([t for t, _ in c]):.2f}** | **{np.mean([h for _, h in c]):.2f}**" for c in columns.values()
+    )
+    lines.append(f"| **mean of its identities** | {means} |")
+    return lines
 
 
 def avatar_row(label: str, avatar: Avatar, subject: Path) -> tuple[str, np.ndarray]:
@@ -61,38 +72,40 @@ def avatar_row(label: str, avatar: Avatar, subject: Path) -> tuple[str, np.ndarr
         novel = evaluate(avatar, subject, strip=strip, split="test_novel_pose", true_poses=True).psnr
         picture = np.asarray(Image.open(strip))
     half = len(novel) // 2
+    steps = avatar.metadata.get("steps", {})
     row = (
-        f"| {label} | {avatar.metadata.get('steps')} | {train:.2f} | {np.mean(novel):.2f} | "
+        f"| {label} | {steps.get('stage1', 0)} + {steps.get('stage2', 0)} | {train:.2f} | {np.mean(novel):.2f} | "
         f"{np.mean(novel[:half]):.2f} | {np.mean(novel[half:]):.2f} | {train - np.mean(novel):.2f} |"
     )
-    rows_high = picture.shape[0] // min(len(novel), 6)
-    return row, picture[: STRIP_ROWS * rows_high]
+    rows_high = picture.shape[0] // min(len(novel), STRIP_FRAMES)
+    labelled = Image.fromarray(picture[: STRIP_ROWS * rows_high])
+    ImageDraw.Draw(labelled).text((8, 8), label, fill=(0, 0, 0))
+    return row, np.asarray(labelled)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--prior", required=True, type=Path)
+    parser.add_argument("--prior", action="append", required=True, help="LABEL=PATH of a prior, repeatable")
     parser.add_argument("--data", required=True, type=Path, help="the prior's training data")
     parser.add_argument("--subject", required=True, type=Path, help="the held-out monocular subject")
     parser.add_argument("--avatar", action="append", default=[], help="LABEL=PATH, repeatable")
     args = parser.parse_args()
     setup_threads()
-    prior = load_avatar(args.prior)
+    priors = {label: load_avatar(path) for label, _, path in (spec.partition("=") for spec in args.prior)}
     lines = [
         "# Why the prior does not help yet",
         "",
         "Produced by `python benchmarks/diagnose_prior.py "
-        f"--prior {args.prior} --data {args.data} --subject {args.subject} "
+        + " ".join(f'--prior "{p}"' for p in args.prior)
+        + f" --data {args.data} --subject {args.subject} "
         + " ".join(f'--avatar "{a}"' for a in args.avatar)
         + "` (whole images on white, exact poses).",
         "",
-        f"## 1. The prior on its own training identities ({prior.metadata.get('steps')} steps)",
+        "## 1. Priors on their own training identities",
         "",
         f"PSNR of each identity's decoded map: every {TRAIN_STRIDE}th training image, and the held-out frames.",
         "",
-        "| identity | train | held out |",
-        "|---|---|---|",
-        *prior_rows(prior, args.data),
+        *prior_table(priors, args.data),
         "",
         "## 2. Avatars on the held-out subject",
         "",
