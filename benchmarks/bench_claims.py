@@ -211,6 +211,8 @@ def write_table(results: dict, args: argparse.Namespace, bent: list[int]) -> Non
         f"{budget.fit_images} images (the default `pghm fit`). LPIPS: weights not on this machine, term dropped.",
         "Scratch runs are snapshots of one run continued from its checkpoint (constant learning rate, batch plan a",
         "function of seed and step, so the snapshot at s steps is the s-step run). Minutes are optimisation time.",
+        "Why the prior loses at this budget, and what a longer-trained prior changes:",
+        "[prior_diagnosis.md](prior_diagnosis.md) and [training.md](training.md#why-the-prior-does-not-help-yet).",
         "",
         "## 1. Prior + personalisation vs scratch",
         "",
