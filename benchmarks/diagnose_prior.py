@@ -24,8 +24,8 @@ import numpy as np
 from common import DOCS, setup_threads
 from PIL import Image, ImageDraw
 
+from pghm.data.subject import Subject
 from pghm.io.avatar import Avatar, load_avatar
-from pghm.train.data import TrainingData
 from pghm.train.evaluate import STRIP_FRAMES, evaluate
 
 TRAIN_STRIDE = 5
@@ -36,7 +36,7 @@ STRIP_ROWS = 1
 
 def split_psnr(avatar: Avatar, subject: Path, split: str, stride: int = 1) -> list[float]:
     """Per-image PSNR of ``avatar`` on every ``stride``-th image of ``split`` (exact poses)."""
-    indices = [int(i) for i in TrainingData(subject, split=split).images[0]][::stride]
+    indices = [int(i) for i in Subject.open(subject).split(split).indices][::stride]
     return evaluate(avatar, subject, split=split, true_poses=True, images=indices).psnr
 
 
@@ -88,7 +88,7 @@ def main() -> None:
     parser.add_argument("--prior", action="append", required=True, help="LABEL=PATH of a prior, repeatable")
     parser.add_argument("--data", required=True, type=Path, help="the prior's training data")
     parser.add_argument("--subject", required=True, type=Path, help="the held-out monocular subject")
-    parser.add_argument("--avatar", action="append", default=[], help="LABEL=PATH, repeatable")
+    parser.add_argument("--avatar", action="append", required=True, help="LABEL=PATH of an avatar, repeatable")
     args = parser.parse_args()
     setup_threads()
     priors = {label: load_avatar(path) for label, _, path in (spec.partition("=") for spec in args.prior)}

@@ -202,7 +202,7 @@ class PGHM(nn.Module):
         """Set training or inference mode, and lay the convolution weights out for it.
 
         Inference runs every convolution channels-last (NHWC), which oneDNN executes about
-        20 % faster on this CPU (benchmarks/bench_model.py, "layout" rows); the activations
+        20 % faster on this CPU (benchmarks/bench_model.py, its "inference_layout" rows); the activations
         follow the weights' layout. Training keeps the default NCHW, whose backward pass is
         faster. The values are the same either way; only the strides differ.
         """
