@@ -19,6 +19,7 @@ import torch
 from PIL import Image
 from torch import Tensor, nn
 
+from pghm.body.model import BodyModel
 from pghm.data.subject import Dataset, Subject
 from pghm.errors import DatasetError, PghmError
 from pghm.io.read_errors import IMAGE_READ_ERRORS
@@ -223,15 +224,32 @@ class TrainingData:
 class PoseCorrections(nn.Module):
     """Learned per-frame corrections of the stored poses (the paper refines noisy poses).
 
-    corrected rotations = stored + delta_rotations[frame] (axis-angle, small deltas),
+    corrected rotations[:, bones] = stored + delta_rotations[frame] (axis-angle, small deltas),
     corrected translation = stored + delta_translation[frame]; both start at zero.
+
+    Only the estimator's joints (``bones``) are corrected: the other bones (fingers, face,
+    twist bones) are not estimated, so a pose estimator's error is not in them, and their
+    photometric gradients are too weak to steer Adam's unit-sized first steps.
+
+    Args:
+        num_frames: number of frames (rows).
+        num_bones: J, the body's bones.
+        bones: (K,) indices of the corrected bones; all J when None.
     """
 
-    def __init__(self, num_frames: int, num_bones: int) -> None:
+    def __init__(self, num_frames: int, num_bones: int, bones: list[int] | None = None) -> None:
         super().__init__()
-        self.rotations = nn.Parameter(torch.zeros(num_frames, num_bones, 3))
+        bones = list(range(num_bones)) if bones is None else sorted(set(bones))
+        self.register_buffer("bones", torch.tensor(bones, dtype=torch.long), persistent=False)
+        self.rotations = nn.Parameter(torch.zeros(num_frames, len(bones), 3))
         self.translation = nn.Parameter(torch.zeros(num_frames, 3))
+
+    @classmethod
+    def of_estimated_joints(cls, num_frames: int, body: BodyModel) -> PoseCorrections:
+        """Corrections of the body's canonical joints (those a pose estimator reports)."""
+        return cls(num_frames, body.num_bones, list(body.joint_map.values()))
 
     def forward(self, frame_keys: Tensor, rotations: Tensor, translation: Tensor) -> tuple[Tensor, Tensor]:
         """Corrected (B, J, 3) rotations and (B, 3) translations for frames (B,)."""
-        return rotations + self.rotations[frame_keys], translation + self.translation[frame_keys]
+        rotations = rotations.index_add(1, self.bones, self.rotations[frame_keys])
+        return rotations, translation + self.translation[frame_keys]

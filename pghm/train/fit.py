@@ -31,6 +31,7 @@ from pghm.train.loop import (
     restore,
     run_stage,
 )
+from pghm.train.optim import LazyAdam
 from pghm.train.prior import GeometryCache, checkpoint_path, lpips_for
 
 log = logging.getLogger(__name__)
@@ -49,8 +50,8 @@ class FitConfig:
     """Adam learning rate of the personal latent (both stages)."""
     network_lr: float = 2e-4
     """Adam learning rate of the U-Net in stage 2."""
-    pose_lr: float = 1e-3
-    """Adam learning rate of the per-frame pose corrections in stage 2."""
+    pose_lr: float = 1e-2
+    """Adam learning rate of the per-frame pose corrections in stage 2 (lazy rows, as in the prior)."""
     refine_poses: bool = True
     lpips: bool = True
     body_model_path: str | None = None
@@ -112,7 +113,7 @@ def fit(
         p.requires_grad_(False)
     geometries = GeometryCache(data, model.config, config.body_model_path)
     latent = nn.Parameter(initial_latent(model))
-    corrections = PoseCorrections(data.num_frames, geometries.body.num_bones) if config.refine_poses else None
+    corrections = PoseCorrections.of_estimated_joints(data.num_frames, geometries.body) if config.refine_poses else None
     lpips, lpips_line = lpips_for(config.lpips)
     objective = AvatarObjective(model, latent, corrections, config.stage1.loss, lpips)
     ckpt = checkpoint_path(out)
@@ -134,8 +135,8 @@ def fit(
         p.requires_grad_(True)
     groups = [{"params": [latent], "lr": config.latent_lr}, {"params": network, "lr": config.network_lr}]
     if corrections is not None:
-        groups.append({"params": list(corrections.parameters()), "lr": config.pose_lr})
-    stage2_opt = torch.optim.Adam(groups)
+        groups.append({"params": list(corrections.parameters()), "lr": config.pose_lr, "lazy": True})
+    stage2_opt = LazyAdam(groups)
     state2 = LoopState()
     if payload and start_stage == 2:
         state2 = restore(payload, objective, stage2_opt)

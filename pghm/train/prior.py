@@ -30,6 +30,7 @@ from pghm.train.loop import (
     run_stage,
 )
 from pghm.train.lpips import load_lpips, lpips_status
+from pghm.train.optim import LazyAdam
 from pghm.uv.atlas import build_atlas
 
 log = logging.getLogger(__name__)
@@ -45,8 +46,9 @@ class PriorConfig:
     """Adam learning rate of the Feature Decoder and the U-Net."""
     latent_lr: float = 1e-2
     """Adam learning rate of the bank latents."""
-    pose_lr: float = 1e-3
-    """Adam learning rate of the per-frame pose corrections (radians, metres)."""
+    pose_lr: float = 1e-2
+    """Adam learning rate of the per-frame pose corrections (radians, metres). Lazy rows: a
+    frame's correction moves only when the frame is in the batch, by about this much per visit."""
     refine_poses: bool = True
     """Learn per-frame pose corrections."""
     lpips: bool = True
@@ -100,15 +102,19 @@ def train_prior(
     geometries = GeometryCache(data, config.model, config.body_model_path)
     torch.manual_seed(config.loop.seed)
     model = PGHM(config.model, num_identities=data.num_identities)
-    corrections = PoseCorrections(data.num_frames, geometries.body.num_bones) if config.refine_poses else None
+    corrections = PoseCorrections.of_estimated_joints(data.num_frames, geometries.body) if config.refine_poses else None
     lpips, lpips_line = lpips_for(config.lpips)
     objective = AvatarObjective(model, None, corrections, config.loop.loss, lpips)
     bank = [model.identity_bank]
     network = [p for name, p in model.named_parameters() if name != "identity_bank"]
-    groups = [{"params": network, "lr": config.network_lr}, {"params": bank, "lr": config.latent_lr}]
+    # A step sees one identity's latent and one frame's correction: those tables are lazy.
+    groups = [
+        {"params": network, "lr": config.network_lr},
+        {"params": bank, "lr": config.latent_lr, "lazy": True},
+    ]
     if corrections is not None:
-        groups.append({"params": list(corrections.parameters()), "lr": config.pose_lr})
-    optimizer = torch.optim.Adam(groups)
+        groups.append({"params": list(corrections.parameters()), "lr": config.pose_lr, "lazy": True})
+    optimizer = LazyAdam(groups)
     trainable = [p for group in groups for p in group["params"]]
 
     state = LoopState()
