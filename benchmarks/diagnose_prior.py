@@ -1,5 +1,5 @@
-"""Why the prior does not beat scratch here (issue 6): how well a prior fits the people it
-was trained on, and where personalised avatars lose on the held-out subject.
+"""Whether a prior can help (issue 6): how well a prior fits the people it was trained on,
+and where personalised avatars gain or lose on the held-out subject.
 
 1. The prior on its own training identities: PSNR of every identity's decoded map on its
    training and held-out images (a prior that cannot reproduce its own people cannot
@@ -93,7 +93,7 @@ def main() -> None:
     setup_threads()
     priors = {label: load_avatar(path) for label, _, path in (spec.partition("=") for spec in args.prior)}
     lines = [
-        "# Why the prior does not help yet",
+        "# What the priors learn, and what they hand on",
         "",
         "Produced by `python benchmarks/diagnose_prior.py "
         + " ".join(f'--prior "{p}"' for p in args.prior)
