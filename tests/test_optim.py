@@ -8,7 +8,7 @@ from pghm.train.optim import LazyAdam
 STEPS = 12
 
 
-def quadratic_gradients(steps: int, shape: tuple[int, ...], seed: int) -> list[torch.Tensor]:
+def random_gradients(steps: int, shape: tuple[int, ...], seed: int) -> list[torch.Tensor]:
     gen = torch.Generator().manual_seed(seed)
     return [torch.randn(shape, generator=gen) for _ in range(steps)]
 
@@ -18,7 +18,7 @@ def test_dense_group_is_adam():
     ours, reference = torch.nn.Parameter(start.clone()), torch.nn.Parameter(start.clone())
     lazy = LazyAdam([ours], lr=0.05)
     adam = torch.optim.Adam([reference], lr=0.05)
-    for grad in quadratic_gradients(STEPS, (5, 3), 0):
+    for grad in random_gradients(STEPS, (5, 3), 0):
         # The gradient depends on the parameters, so a wrong update compounds.
         ours.grad = grad + ours.detach()
         reference.grad = grad + reference.detach()
@@ -35,7 +35,7 @@ def test_lazy_rows_are_adam_on_the_steps_that_touched_them():
     start = torch.randn(rows, 2, width)
     table = torch.nn.Parameter(start.clone())
     lazy = LazyAdam([{"params": [table], "lazy": True}], lr=0.05)
-    grads = quadratic_gradients(STEPS, (rows, 2, width), 2)
+    grads = random_gradients(STEPS, (rows, 2, width), 2)
     for step in range(STEPS):
         table.grad = (grads[step] + table.detach()) * touched[step].reshape(-1, 1, 1)
         lazy.step()

@@ -36,9 +36,9 @@ WINDOW = (960, 640)
 CHANGE_LEVELS = 8
 """A channel difference above this many 8-bit levels marks a pixel as changed."""
 JOINT_MARGIN = 40
+"""Pixels around a limb's joints that its Gaussians (and their footprints) may reach."""
 EDGE_MARGIN = 2
 """Pixels beyond a silhouette that its edge Gaussians' faint falloff (under CHANGE_LEVELS) may reach."""
-"""Pixels around a limb's joints that its Gaussians (and their footprints) may reach."""
 XVFB_START_SECONDS = 20
 
 

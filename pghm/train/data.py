@@ -233,21 +233,19 @@ class PoseCorrections(nn.Module):
 
     Args:
         num_frames: number of frames (rows).
-        num_bones: J, the body's bones.
-        bones: (K,) indices of the corrected bones; all J when None.
+        bones: (K,) indices of the corrected bones.
     """
 
-    def __init__(self, num_frames: int, num_bones: int, bones: list[int] | None = None) -> None:
+    def __init__(self, num_frames: int, bones: list[int]) -> None:
         super().__init__()
-        bones = list(range(num_bones)) if bones is None else sorted(set(bones))
-        self.register_buffer("bones", torch.tensor(bones, dtype=torch.long), persistent=False)
-        self.rotations = nn.Parameter(torch.zeros(num_frames, len(bones), 3))
+        self.register_buffer("bones", torch.tensor(sorted(set(bones)), dtype=torch.long), persistent=False)
+        self.rotations = nn.Parameter(torch.zeros(num_frames, len(self.bones), 3))
         self.translation = nn.Parameter(torch.zeros(num_frames, 3))
 
     @classmethod
     def of_estimated_joints(cls, num_frames: int, body: BodyModel) -> PoseCorrections:
         """Corrections of the body's canonical joints (those a pose estimator reports)."""
-        return cls(num_frames, body.num_bones, list(body.joint_map.values()))
+        return cls(num_frames, list(body.joint_map.values()))
 
     def forward(self, frame_keys: Tensor, rotations: Tensor, translation: Tensor) -> tuple[Tensor, Tensor]:
         """Corrected (B, J, 3) rotations and (B, 3) translations for frames (B,)."""
