@@ -8,6 +8,9 @@ import logging
 import sys
 
 from pghm.model import ModelConfig
+from pghm.train.fit import FitConfig
+from pghm.train.loop import LoopConfig
+from pghm.train.prior import PriorConfig
 
 
 def _model_arguments(parser: argparse.ArgumentParser) -> None:
@@ -22,10 +25,15 @@ def _model_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _loop_arguments(parser: argparse.ArgumentParser, prefix: str, steps: int, images: int) -> None:
-    parser.add_argument(f"--{prefix}steps", type=int, default=steps, help="optimisation steps (default %(default)s)")
+def _loop_arguments(parser: argparse.ArgumentParser, prefix: str, defaults: LoopConfig) -> None:
     parser.add_argument(
-        f"--{prefix}images", type=int, default=images, help="images per identity group (default %(default)s)"
+        f"--{prefix}steps", type=int, default=defaults.steps, help="optimisation steps (default %(default)s)"
+    )
+    parser.add_argument(
+        f"--{prefix}images",
+        type=int,
+        default=defaults.images_per_shard,
+        help="images per identity group (default %(default)s)",
     )
 
 
@@ -44,11 +52,13 @@ def register(subparsers) -> None:
     prior = subparsers.add_parser("train-prior", help="train a prior over many identities (multi-view data)")
     prior.add_argument("data_dir", help="a folder of subject folders (pghm synth --config prior)")
     prior.add_argument("--out", required=True, help="prior file to write, e.g. prior.pt")
-    _loop_arguments(prior, "", 3000, 4)
+    _loop_arguments(prior, "", PriorConfig().loop)
     prior.add_argument(
         "--shards", type=int, default=1, help="identity groups per step; a multiple of the torchrun processes"
     )
-    prior.add_argument("--lr", type=float, default=1e-3, help="network learning rate (default %(default)s)")
+    prior.add_argument(
+        "--lr", type=float, default=PriorConfig().network_lr, help="network learning rate (default %(default)s)"
+    )
     prior.add_argument("--identities", type=int, default=None, help="train on the first N subjects only (default: all)")
     _model_arguments(prior)
     _common(prior)
@@ -58,8 +68,9 @@ def register(subparsers) -> None:
     fit.add_argument("subject_dir")
     fit.add_argument("--prior", required=True, help="prior file (pghm train-prior), or 'scratch' to train from nothing")
     fit.add_argument("--out", required=True, help="avatar file to write, e.g. avatar.pt")
-    _loop_arguments(fit, "stage1-", 500, 2)
-    _loop_arguments(fit, "stage2-", 500, 2)
+    fit_defaults = FitConfig()
+    _loop_arguments(fit, "stage1-", fit_defaults.stage1)
+    _loop_arguments(fit, "stage2-", fit_defaults.stage2)
     _common(fit)
     fit.set_defaults(func=run_fit)
 
@@ -79,8 +90,7 @@ def _logging() -> None:
 
 
 def run_train_prior(args: argparse.Namespace) -> int:
-    from pghm.train.loop import LoopConfig
-    from pghm.train.prior import PriorConfig, train_prior
+    from pghm.train.prior import train_prior
 
     _logging()
     model = ModelConfig(uv_resolution=args.uv_resolution, latent_channels=args.latent_channels, head=args.head)
@@ -109,8 +119,7 @@ def run_train_prior(args: argparse.Namespace) -> int:
 
 
 def run_fit(args: argparse.Namespace) -> int:
-    from pghm.train.fit import FitConfig, fit
-    from pghm.train.loop import LoopConfig
+    from pghm.train.fit import fit
 
     _logging()
     stages = [

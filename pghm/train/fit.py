@@ -44,8 +44,8 @@ NETWORK_PARTS = tuple(part for part in COMPONENTS if part != "feature_decoder")
 class FitConfig:
     """Two-stage personalisation; defaults sized for a 2-core CPU (paper: 1k + 1k steps)."""
 
-    stage1: LoopConfig = field(default_factory=lambda: LoopConfig(steps=500, images_per_shard=2))
-    stage2: LoopConfig = field(default_factory=lambda: LoopConfig(steps=500, images_per_shard=2))
+    stage1: LoopConfig = field(default_factory=lambda: LoopConfig(steps=100, images_per_shard=2))
+    stage2: LoopConfig = field(default_factory=lambda: LoopConfig(steps=900, images_per_shard=2))
     latent_lr: float = 1e-2
     """Adam learning rate of the personal latent (both stages)."""
     network_lr: float = 2e-4

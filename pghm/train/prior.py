@@ -41,7 +41,7 @@ class PriorConfig:
     """Prior training; defaults sized for a 2-core CPU."""
 
     model: ModelConfig = field(default_factory=ModelConfig)
-    loop: LoopConfig = field(default_factory=lambda: LoopConfig(steps=3000, images_per_shard=4))
+    loop: LoopConfig = field(default_factory=lambda: LoopConfig(steps=9000, images_per_shard=4))
     network_lr: float = 1e-3
     """Adam learning rate of the Feature Decoder and the U-Net."""
     latent_lr: float = 1e-2
