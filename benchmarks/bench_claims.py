@@ -51,12 +51,12 @@ class Budget:
 
     prior_steps: int = PriorConfig().loop.steps
     ablation_prior_steps: int = 3000
-    prior_images: int = 4
+    prior_images: int = PriorConfig().loop.images_per_shard
     stage1_steps: int = FitConfig().stage1.steps
     stage2_steps: int = FitConfig().stage2.steps
     ablation_stage1_steps: int = 500
     ablation_stage2_steps: int = 500
-    fit_images: int = 2
+    fit_images: int = FitConfig().stage1.images_per_shard
     scratch_factor: int = 10
     short_steps: int = 500
     """K of claim 1's short comparison (prior K vs scratch K and 10 K); the long one uses K = stage1 + stage2."""
