@@ -71,6 +71,12 @@ def register(subparsers) -> None:
     fit_defaults = FitConfig()
     _loop_arguments(fit, "stage1-", fit_defaults.stage1)
     _loop_arguments(fit, "stage2-", fit_defaults.stage2)
+    fit.add_argument(
+        "--pose-smoothing",
+        type=float,
+        default=fit_defaults.pose_smoothing,
+        help="sigma in frames of the temporal filter on the estimated poses; 0: as stored (default %(default)s)",
+    )
     _common(fit)
     fit.set_defaults(func=run_fit)
 
@@ -130,6 +136,7 @@ def run_fit(args: argparse.Namespace) -> int:
         stage1=stages[0],
         stage2=stages[1],
         refine_poses=not args.no_pose_refinement,
+        pose_smoothing=args.pose_smoothing,
         lpips=not args.no_lpips,
         body_model_path=args.body_model_path,
     )

@@ -20,10 +20,11 @@ from PIL import Image
 from torch import Tensor, nn
 
 from pghm.body.model import BodyModel
-from pghm.data.subject import Dataset, Subject
+from pghm.data.subject import Dataset, Frame, Subject
 from pghm.errors import DatasetError, PghmError
 from pghm.io.read_errors import IMAGE_READ_ERRORS
 from pghm.splat import Camera
+from pghm.train.pose_smoothing import smooth_track
 
 log = logging.getLogger(__name__)
 
@@ -41,8 +42,9 @@ class Sample:
         frame_key: global index of the pose (the frame, shared by the views of one instant).
         image: (3, H, W) float32 target, white background.
         camera: the image's camera.
-        rotations: (J, 3) pose as stored (an estimate, possibly noisy).
-        translation: (3,) root translation as stored.
+        rotations: (J, 3) pose to train on: the stored estimate (possibly noisy), smoothed
+            over time, or exact (see :class:`TrainingData`).
+        translation: (3,) root translation, likewise.
     """
 
     identity: int
@@ -54,6 +56,24 @@ class Sample:
     translation: Tensor
 
 
+def _smoothed_poses(subject: Subject, images: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """(n, J, 3) rotations and (n, 3) translations of all the subject's images, the ``images``
+    rows replaced by their frames' estimates smoothed over time (the views of a frame share one)."""
+    arrays = subject.arrays
+    frame_of = arrays.frame_index[images] if arrays.frame_index is not None else images
+    frames, first = np.unique(frame_of, return_index=True)
+    rotations, translation = smooth_track(
+        frames,
+        torch.from_numpy(arrays.rotations[images[first]]),
+        torch.from_numpy(arrays.translation[images[first]]),
+        sigma,
+    )
+    out_rotations, out_translation = arrays.rotations.copy(), arrays.translation.copy()
+    row = np.searchsorted(frames, frame_of)
+    out_rotations[images], out_translation[images] = rotations.numpy()[row], translation.numpy()[row]
+    return out_rotations, out_translation
+
+
 class TrainingData:
     """The identities (subject folders) of a data set and their training images.
 
@@ -63,6 +83,8 @@ class TrainingData:
         max_identities: use only the first this-many subjects (None: all).
         true_poses: use the exact poses synthetic subjects carry (``rotations_true``)
             instead of the estimates, to measure appearance apart from pose error.
+        pose_smoothing: standard deviation in frames of a Gaussian filter applied over time
+            to the split's estimated poses (see :mod:`pghm.train.pose_smoothing`); 0: as stored.
     """
 
     def __init__(
@@ -71,6 +93,7 @@ class TrainingData:
         split: str = "train",
         max_identities: int | None = None,
         true_poses: bool = False,
+        pose_smoothing: float = 0.0,
     ) -> None:
         root = Path(root)
         if not root.is_dir():
@@ -107,6 +130,10 @@ class TrainingData:
             frames = subject.arrays.frame_index
             offset += int(frames.max()) + 1 if frames is not None else len(subject)
         self.num_frames = offset
+        self.smoothed_poses = [
+            _smoothed_poses(subject, images, pose_smoothing) if pose_smoothing else None
+            for subject, images in zip(self.subjects, self.images)
+        ]
 
     def _check_files(self, identity: int, subject: Subject, images: np.ndarray) -> None:
         """Every image and mask of the split exists with the size cameras.npz gives (PNG headers only).
@@ -177,13 +204,22 @@ class TrainingData:
                 width=int(frame.image.shape[1]),
                 height=int(frame.image.shape[0]),
             ),
-            rotations=torch.as_tensor(
-                frame.rotations_true if self.true_poses else frame.rotations, dtype=torch.float32
-            ),
-            translation=torch.as_tensor(
-                frame.translation_true if self.true_poses else frame.translation, dtype=torch.float32
-            ),
+            **self._pose(identity, image_index, frame),
         )
+
+    def _pose(self, identity: int, image_index: int, frame: Frame) -> dict[str, Tensor]:
+        """The pose an image is trained on: exact, smoothed or as stored."""
+        smoothed = self.smoothed_poses[identity]
+        if self.true_poses:
+            rotations, translation = frame.rotations_true, frame.translation_true
+        elif smoothed is not None:
+            rotations, translation = smoothed[0][image_index], smoothed[1][image_index]
+        else:
+            rotations, translation = frame.rotations, frame.translation
+        return {
+            "rotations": torch.as_tensor(rotations, dtype=torch.float32),
+            "translation": torch.as_tensor(translation, dtype=torch.float32),
+        }
 
     def plan(
         self, seed: int, step: int, shards: int, images_per_shard: int, same_instant: bool = True
