@@ -209,10 +209,9 @@ class TrainingData:
 
     def _pose(self, identity: int, image_index: int, frame: Frame) -> dict[str, Tensor]:
         """The pose an image is trained on: exact, smoothed or as stored."""
-        smoothed = self.smoothed_poses[identity]
         if self.true_poses:
             rotations, translation = frame.rotations_true, frame.translation_true
-        elif smoothed is not None:
+        elif (smoothed := self.smoothed_poses[identity]) is not None:
             rotations, translation = smoothed[0][image_index], smoothed[1][image_index]
         else:
             rotations, translation = frame.rotations, frame.translation

@@ -11,7 +11,6 @@ optimised together, with per-frame pose corrections when ``refine_poses``.
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -101,8 +100,6 @@ def fit(
     config = config or FitConfig()
     for name in ("latent_lr", "network_lr", "pose_lr"):
         check_learning_rate(name, getattr(config, name))
-    if not (math.isfinite(config.pose_smoothing) and config.pose_smoothing >= 0):
-        raise PghmError(f"pose smoothing must be a finite number of frames >= 0, got {config.pose_smoothing}")
     out = Path(out)
     data = TrainingData(subject_dir, pose_smoothing=config.pose_smoothing)
     if data.num_identities != 1:

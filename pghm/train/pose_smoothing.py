@@ -29,6 +29,8 @@ import roma
 import torch
 from torch import Tensor
 
+from pghm.errors import PghmError
+
 WINDOW_SIGMAS = 3.0
 """Half-width of the window in standard deviations (the weights beyond are below 1.2% of the centre one)."""
 
@@ -88,10 +90,10 @@ def smooth_track(
         frames: (F,) distinct frame numbers, ascending.
         rotations: (F, J, 3) axis-angle, one pose per frame.
         translation: (F, 3).
-        sigma: window standard deviation in frames (>= 0).
+        sigma: window standard deviation in frames (>= 0; PghmError otherwise).
     """
     if sigma < 0 or not math.isfinite(sigma):
-        raise ValueError(f"pose smoothing sigma must be finite and >= 0, got {sigma}")
+        raise PghmError(f"pose smoothing sigma must be a finite number of frames >= 0, got {sigma}")
     out_rotations, out_translation = rotations.clone(), translation.clone()
     for run in consecutive_runs(frames):
         index = torch.from_numpy(run)
