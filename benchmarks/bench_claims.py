@@ -61,6 +61,9 @@ class Budget:
     long_steps: int = 1000
     """K of claim 1's second comparison, twice the default fit: prior K (stages in the default's
     proportion) vs scratch K and 10 K; the first uses K = stage1 + stage2."""
+    extra_seeds: tuple[int, ...] = (1, 2)
+    """Seeds of claim 4's repeats at the default budget (the main runs use seed 0): batch order
+    and, for scratch, the network's initialisation."""
 
 
 class NotRun(Exception):
@@ -131,6 +134,7 @@ def main() -> None:
             ablation_stage2_steps=2,
             scratch_factor=2,
             long_steps=8,
+            extra_seeds=(1,),
         )
         if args.quick
         else Budget()
@@ -138,11 +142,11 @@ def main() -> None:
     runs, subject, data = Runs(Path(args.work), args.table), Path(args.subject), Path(args.data)
     bent = bent_frames(subject)
 
-    def fit_config(stage1: int, stage2: int) -> FitConfig:
+    def fit_config(stage1: int, stage2: int, seed: int = 0) -> FitConfig:
         # A checkpoint at the end of each stage lets a longer run of the same chain resume from it.
         return FitConfig(
-            stage1=LoopConfig(steps=stage1, images_per_shard=budget.fit_images, checkpoint_every=stage1),
-            stage2=LoopConfig(steps=stage2, images_per_shard=budget.fit_images, checkpoint_every=stage2),
+            stage1=LoopConfig(steps=stage1, images_per_shard=budget.fit_images, checkpoint_every=stage1, seed=seed),
+            stage2=LoopConfig(steps=stage2, images_per_shard=budget.fit_images, checkpoint_every=stage2, seed=seed),
         )
 
     def prior(name: str, identities: int | None, steps: int, head: str = "multi") -> tuple[Path, dict]:
@@ -163,7 +167,7 @@ def main() -> None:
 
         return out, runs.cached(f"train_{name}", compute)
 
-    def personalise(name: str, source, stage1: int, stage2: int, chain: str | None = None) -> dict:
+    def personalise(name: str, source, stage1: int, stage2: int, chain: str | None = None, seed: int = 0) -> dict:
         """One fit, evaluated. Runs of one ``chain`` share a file and continue each other's
         checkpoint: the learning rate is constant and the batch plan is a function of
         (seed, step), so continuing a 500-step run to 1000 gives the 1000-step run."""
@@ -171,7 +175,8 @@ def main() -> None:
         ckpt = out.with_name(out.name + ".ckpt")
 
         def compute():
-            avatar = fit(subject, source, out, fit_config(stage1, stage2), resume=chain is not None and ckpt.is_file())
+            config = fit_config(stage1, stage2, seed)
+            avatar = fit(subject, source, out, config, resume=chain is not None and ckpt.is_file())
             return {
                 "fit_seconds": avatar.metadata["seconds"],
                 "steps": avatar.metadata["steps"],
@@ -183,7 +188,7 @@ def main() -> None:
 
     k, long = budget.stage1_steps + budget.stage2_steps, budget.long_steps
     a1, a2 = budget.ablation_stage1_steps, budget.ablation_stage2_steps
-    results: dict = {"budget": asdict(budget), "scratch": {}, "stage1": {}, "scratch_same_time": {}}
+    results: dict = {"budget": asdict(budget), "scratch": {}, "stage1": {}, "scratch_same_time": {}, "seeds": {}}
 
     def scratch(steps: int) -> None:
         results["scratch"][str(steps)] = personalise(f"scratch_{steps}", ModelConfig(), 0, steps, chain="scratch")
@@ -206,6 +211,14 @@ def main() -> None:
         scratch_same_time("prior_fit", k)
         scratch(long)
         scratch_same_time("prior_fit_long", long)
+        results["seeds"]["0"] = {"prior": results["prior_fit"], "scratch": results["scratch"][str(k)]}
+        for seed in budget.extra_seeds:
+            stage1 = budget.stage1_steps
+            results["seeds"][str(seed)] = {
+                "prior": personalise(f"prior_fit_seed{seed}", shipped, stage1, k - stage1, seed=seed),
+                "scratch": personalise(f"scratch_{k}_seed{seed}", ModelConfig(), 0, k, seed=seed),
+            }
+            write_table(results, args, bent)
         results["stage1"]["shipped"] = personalise("stage1_shipped", shipped, a1, 0)
         results["stage1"]["0"] = personalise("stage1_ids0", ModelConfig(), a1, 0)
         for n in (2, 8):
@@ -234,6 +247,31 @@ def versus(prior_fit: dict, rival: dict) -> str:
         f"scratch ({rival['steps']['stage2']} steps) {rival['novel_pose']['psnr']:.2f} dB in "
         f"{rival['fit_seconds'] / 60:.1f} minutes: **{margin:+.2f} dB**."
     )
+
+
+def seed_table(seeds: dict, k: int) -> list[str]:
+    """Claim 4 repeated over seeds at the default budget: prior and scratch after the same k steps."""
+    if len(seeds) < 2:
+        return []
+    lines = [
+        f"Repeats at the default {k} steps with other seeds (the batch order, and scratch's initialisation).",
+        "Prior and scratch take the same number of steps, which cost the same except the prior's cheaper",
+        "stage-1 steps, so their minutes differ by the machine's timing noise only:",
+        "",
+        "| seed | prior + fit | minutes | scratch | minutes | margin |",
+        "|---|---|---|---|---|---|",
+    ]
+    margins = []
+    for seed, pair in sorted(seeds.items(), key=lambda item: int(item[0])):
+        prior, rival = pair["prior"], pair["scratch"]
+        margins.append(prior["novel_pose"]["psnr"] - rival["novel_pose"]["psnr"])
+        lines.append(
+            f"| {seed} | {prior['novel_pose']['psnr']:.2f} | {prior['fit_seconds'] / 60:.1f} | "
+            f"{rival['novel_pose']['psnr']:.2f} | {rival['fit_seconds'] / 60:.1f} | {margins[-1]:+.2f} |"
+        )
+    lines += ["", f"Mean margin over {len(margins)} seeds: **{np.mean(margins):+.2f} dB** "
+              f"(from {min(margins):+.2f} to {max(margins):+.2f}).", ""]
+    return lines
 
 
 def write_table(results: dict, args: argparse.Namespace, bent: list[int]) -> None:
@@ -312,6 +350,7 @@ def write_table(results: dict, args: argparse.Namespace, bent: list[int]) -> Non
             rival = scratch[str(same_time["prior_fit_long"])]
             lines.append(f"- {long} steps: {versus(results['prior_fit_long'], rival)}")
         lines.append("")
+    lines += seed_table(results.get("seeds", {}), k)
     (DOCS / "results.md").write_text("\n".join(lines))
     print("\n".join(lines))
 
