@@ -10,6 +10,7 @@ import sys
 from pghm.model import ModelConfig
 from pghm.train.fit import FitConfig
 from pghm.train.loop import LoopConfig
+from pghm.train.losses import LossWeights
 from pghm.train.prior import PriorConfig
 
 
@@ -44,6 +45,12 @@ def _common(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--resume", action="store_true", help="continue from OUT.ckpt")
     parser.add_argument("--no-pose-refinement", action="store_true", help="keep the stored poses fixed")
+    parser.add_argument(
+        "--pose-prior",
+        type=float,
+        default=LossWeights().pose_prior,
+        help="weight of a Gaussian prior holding the pose corrections near the estimate; 0: off (default %(default)s)",
+    )
     parser.add_argument("--no-lpips", action="store_true", help="leave the LPIPS term out even if its weights exist")
     parser.add_argument("--body-model-path", default=None, help="your SMPL-X model file, for SMPL-X data")
 
@@ -106,6 +113,7 @@ def run_train_prior(args: argparse.Namespace) -> int:
         images_per_shard=args.images,
         seed=args.seed,
         checkpoint_every=args.checkpoint_every,
+        loss=LossWeights(pose_prior=args.pose_prior),
     )
     config = PriorConfig(
         model=model,
@@ -129,7 +137,13 @@ def run_fit(args: argparse.Namespace) -> int:
 
     _logging()
     stages = [
-        LoopConfig(steps=steps, images_per_shard=images, seed=args.seed, checkpoint_every=args.checkpoint_every)
+        LoopConfig(
+            steps=steps,
+            images_per_shard=images,
+            seed=args.seed,
+            checkpoint_every=args.checkpoint_every,
+            loss=LossWeights(pose_prior=args.pose_prior),
+        )
         for steps, images in ((args.stage1_steps, args.stage1_images), (args.stage2_steps, args.stage2_images))
     ]
     config = FitConfig(

@@ -11,6 +11,7 @@ over processes then equals the single-process mean over all groups.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -256,6 +257,13 @@ class TrainingData:
         return samples
 
 
+ESTIMATOR_ROTATION_SIGMA = math.radians(2.0)
+"""Per-axis standard deviation (radians) of a pose estimator's joint rotations, as the synthetic
+data assume it (``SynthConfig.pose_noise_deg``); the scale of the corrections' prior."""
+ESTIMATOR_TRANSLATION_SIGMA = 0.01
+"""Per-axis standard deviation (metres) of its root translation (``SynthConfig.translation_noise_m``)."""
+
+
 class PoseCorrections(nn.Module):
     """Learned per-frame corrections of the stored poses (the paper refines noisy poses).
 
@@ -281,6 +289,21 @@ class PoseCorrections(nn.Module):
     def of_estimated_joints(cls, num_frames: int, body: BodyModel) -> PoseCorrections:
         """Corrections of the body's canonical joints (those a pose estimator reports)."""
         return cls(num_frames, list(body.joint_map.values()))
+
+    def prior(self, frame_keys: Tensor) -> Tensor:
+        """The corrections of frames (B,) in units of the estimator's noise, averaged over frames:
+
+            mean_b [ sum_j |delta_r[b, j]|^2 / sigma_r^2 + |delta_t[b]|^2 / sigma_t^2 ],
+
+        minus twice the log of a zero-mean Gaussian prior on them, up to a constant. Adam steps
+        every coordinate at its learning rate whatever the size of its gradient, so those a
+        single view barely sees (the depth of the root, the wrists, ankles and head: gradients
+        10 to 100 times weaker) drift with the noise; the prior holds them near the estimate
+        while the image moves the well-seen ones.
+        """
+        rotations = self.rotations[frame_keys].square().flatten(1).sum(1) / ESTIMATOR_ROTATION_SIGMA**2
+        translation = self.translation[frame_keys].square().sum(1) / ESTIMATOR_TRANSLATION_SIGMA**2
+        return (rotations + translation).mean()
 
     def forward(self, frame_keys: Tensor, rotations: Tensor, translation: Tensor) -> tuple[Tensor, Tensor]:
         """Corrected (B, J, 3) rotations and (B, 3) translations for frames (B,)."""

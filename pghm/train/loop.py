@@ -72,6 +72,11 @@ class LoopConfig:
     loss: LossWeights = field(default_factory=LossWeights)
 
 
+def distinct_frames(samples: list[Sample]) -> list[int]:
+    """The sorted frame keys of samples; the views of one frame share its pose."""
+    return sorted({s.frame_key for s in samples})
+
+
 class AvatarObjective(nn.Module):
     """Model, optional personal latent, optional pose corrections, and the paper's loss.
 
@@ -108,7 +113,7 @@ class AvatarObjective(nn.Module):
         """Static and dynamic renders (B, 3, H, W) of one identity's samples, and the regulariser."""
         # One pose per distinct frame; the views of a frame share it.
         keys = [s.frame_key for s in samples]
-        unique = sorted(set(keys))
+        unique = distinct_frames(samples)
         first = [keys.index(k) for k in unique]
         rotations = torch.stack([samples[i].rotations for i in first])
         translation = torch.stack([samples[i].translation for i in first])
@@ -147,6 +152,11 @@ class AvatarObjective(nn.Module):
         static, dynamic, regularizer = self.renders(samples, geometry)
         target = torch.stack([s.image for s in samples])
         loss, terms = objective(static, dynamic, target, regularizer, self.weights, self.lpips)
+        if self.corrections is not None and self.weights.pose_prior > 0:
+            prior = self.corrections.prior(torch.tensor(distinct_frames(samples)))
+            loss = loss + self.weights.pose_prior * prior
+            terms["pose_prior"] = float(prior.detach())
+            terms["loss"] = float(loss.detach())
         terms["psnr"] = float(psnr(dynamic.detach().clamp(0, 1), target).mean())
         return loss, terms
 

@@ -11,11 +11,13 @@ exactly Wang et al. 2004's definition); the same function is the evaluation metr
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import torch
 from pytorch_msssim import ssim as _ssim
 from torch import Tensor
+
+from pghm.errors import PghmError
 
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
@@ -29,6 +31,14 @@ class LossWeights:
     ssim: float = 0.2
     lpips: float = 0.2
     regularizer: float = 0.1
+    pose_prior: float = 0.0
+    """Weight of the Gaussian prior on the pose corrections (not in the paper; 0: off), see
+    :meth:`pghm.train.data.PoseCorrections.prior`."""
+
+    def __post_init__(self) -> None:
+        negative = [name for name, value in asdict(self).items() if not value >= 0]
+        if negative:
+            raise PghmError(f"loss weights must be >= 0: {', '.join(negative)}")
 
 
 def ssim(x: Tensor, y: Tensor) -> Tensor:
