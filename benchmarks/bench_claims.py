@@ -213,9 +213,10 @@ def main() -> None:
         scratch_same_time("prior_fit_long", long)
         results["seeds"]["0"] = {"prior": results["prior_fit"], "scratch": results["scratch"][str(k)]}
         for seed in budget.extra_seeds:
-            stage1 = budget.stage1_steps
             results["seeds"][str(seed)] = {
-                "prior": personalise(f"prior_fit_seed{seed}", shipped, stage1, k - stage1, seed=seed),
+                "prior": personalise(
+                    f"prior_fit_seed{seed}", shipped, budget.stage1_steps, budget.stage2_steps, seed=seed
+                ),
                 "scratch": personalise(f"scratch_{k}_seed{seed}", ModelConfig(), 0, k, seed=seed),
             }
             write_table(results, args, bent)
