@@ -1,7 +1,8 @@
-"""The Gaussian prior on the pose corrections: its value by hand, its place in the objective, bad weights."""
+"""The Gaussian prior on the pose corrections: its value by hand, its place in the objective, bad weights, defaults."""
 
 from __future__ import annotations
 
+import importlib
 import math
 
 import pytest
@@ -12,9 +13,10 @@ from pghm.cli.main import main
 from pghm.errors import PghmError
 from pghm.model import PGHM, ModelConfig
 from pghm.train.data import ESTIMATOR_ROTATION_SIGMA, ESTIMATOR_TRANSLATION_SIGMA, PoseCorrections, TrainingData
+from pghm.train.fit import FIT_POSE_PRIOR, FitConfig
 from pghm.train.loop import AvatarObjective
 from pghm.train.losses import LossWeights
-from pghm.train.prior import GeometryCache
+from pghm.train.prior import GeometryCache, PriorConfig
 
 
 def test_prior_counts_the_corrections_in_units_of_the_noise():
@@ -62,3 +64,31 @@ def test_negative_weights_are_refused_with_one_message(tmp_path, capsys):
     code = main(["fit", str(tmp_path), "--prior", "scratch", "--out", str(tmp_path / "a.pt"), "--pose-prior", "-1"])
     assert code == 2
     assert "loss weights must be >= 0: pose_prior" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("command", "module", "library_default"),
+    [
+        (["fit", "subject", "--prior", "prior.pt", "--out", "a.pt"], "pghm.train.fit", "fit"),
+        (["train-prior", "data", "--out", "prior.pt"], "pghm.train.prior", "train_prior"),
+    ],
+)
+def test_commands_without_options_run_the_library_defaults(monkeypatch, command, module, library_default):
+    """The CLI passes the library's default configs through, loss weights included: ``fit`` holds
+    the corrections with the pose prior (FIT_POSE_PRIOR), ``train-prior`` leaves it off."""
+    seen = {}
+
+    class Recorded(Exception):
+        pass
+
+    def record(*positional, resume):
+        seen["config"] = positional[-1]
+        raise Recorded
+
+    monkeypatch.setattr(importlib.import_module(module), library_default, record)
+    with pytest.raises(Recorded):
+        main(command)
+    expected = FitConfig() if library_default == "fit" else PriorConfig()
+    assert seen["config"] == expected
+    weight = expected.stage2.loss.pose_prior if library_default == "fit" else expected.loop.loss.pose_prior
+    assert weight == (FIT_POSE_PRIOR if library_default == "fit" else 0.0)

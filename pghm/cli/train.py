@@ -38,7 +38,7 @@ def _loop_arguments(parser: argparse.ArgumentParser, prefix: str, defaults: Loop
     )
 
 
-def _common(parser: argparse.ArgumentParser) -> None:
+def _common(parser: argparse.ArgumentParser, loss: LossWeights) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seeds the batch plan (default %(default)s)")
     parser.add_argument(
         "--checkpoint-every", type=int, default=100, help="steps between checkpoints (default %(default)s)"
@@ -48,7 +48,7 @@ def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--pose-prior",
         type=float,
-        default=LossWeights().pose_prior,
+        default=loss.pose_prior,
         help="weight of a Gaussian prior holding the pose corrections near the estimate; 0: off (default %(default)s)",
     )
     parser.add_argument("--no-lpips", action="store_true", help="leave the LPIPS term out even if its weights exist")
@@ -68,7 +68,7 @@ def register(subparsers) -> None:
     )
     prior.add_argument("--identities", type=int, default=None, help="train on the first N subjects only (default: all)")
     _model_arguments(prior)
-    _common(prior)
+    _common(prior, PriorConfig().loop.loss)
     prior.set_defaults(func=run_train_prior)
 
     fit = subparsers.add_parser("fit", help="personalise a prior to one subject (monocular video)")
@@ -84,7 +84,7 @@ def register(subparsers) -> None:
         default=fit_defaults.pose_smoothing,
         help="sigma in frames of the temporal filter on the estimated poses; 0: as stored (default %(default)s)",
     )
-    _common(fit)
+    _common(fit, fit_defaults.stage1.loss)
     fit.set_defaults(func=run_fit)
 
     evaluate = subparsers.add_parser("eval", help="PSNR/SSIM/LPIPS of an avatar on a subject's held-out frames")
