@@ -67,13 +67,13 @@ def test_negative_weights_are_refused_with_one_message(tmp_path, capsys):
 
 
 @pytest.mark.parametrize(
-    ("command", "module", "library_default"),
+    ("command", "module", "call", "expected", "weight"),
     [
-        (["fit", "subject", "--prior", "prior.pt", "--out", "a.pt"], "pghm.train.fit", "fit"),
-        (["train-prior", "data", "--out", "prior.pt"], "pghm.train.prior", "train_prior"),
+        (["fit", "subject", "--prior", "p.pt", "--out", "a.pt"], "pghm.train.fit", "fit", FitConfig(), FIT_POSE_PRIOR),
+        (["train-prior", "data", "--out", "p.pt"], "pghm.train.prior", "train_prior", PriorConfig(), 0.0),
     ],
 )
-def test_commands_without_options_run_the_library_defaults(monkeypatch, command, module, library_default):
+def test_commands_without_options_run_the_library_defaults(monkeypatch, command, module, call, expected, weight):
     """The CLI passes the library's default configs through, loss weights included: ``fit`` holds
     the corrections with the pose prior (FIT_POSE_PRIOR), ``train-prior`` leaves it off."""
     seen = {}
@@ -85,10 +85,9 @@ def test_commands_without_options_run_the_library_defaults(monkeypatch, command,
         seen["config"] = positional[-1]
         raise Recorded
 
-    monkeypatch.setattr(importlib.import_module(module), library_default, record)
+    monkeypatch.setattr(importlib.import_module(module), call, record)
     with pytest.raises(Recorded):
         main(command)
-    expected = FitConfig() if library_default == "fit" else PriorConfig()
     assert seen["config"] == expected
-    weight = expected.stage2.loss.pose_prior if library_default == "fit" else expected.loop.loss.pose_prior
-    assert weight == (FIT_POSE_PRIOR if library_default == "fit" else 0.0)
+    stages = [expected.stage1, expected.stage2] if isinstance(expected, FitConfig) else [expected.loop]
+    assert all(stage.loss.pose_prior == weight for stage in stages)
