@@ -42,6 +42,22 @@ AREAS = (
     "nothing lost",
 )
 """Report sections, in this order (an area not listed here follows them)."""
+AREA_NOTES = {
+    "nothing lost": (
+        "**How the kill tests choose their moment.** A kill must land where the test says, on any "
+        "machine at any load, not at a moment the test hopes to catch by polling (a fast idle "
+        "machine finishes a small save between two polls). The atomic writer (`pghm/io/atomic.py`) "
+        "has a fault-injection point, off unless its environment variables are set: with "
+        "`PGHM_TEST_PAUSE_SAVE=POINT:N:NAME` and `PGHM_TEST_PAUSE_MARKER=PATH`, the N-th save to a file "
+        "named NAME that reaches POINT creates PATH and sleeps. The points are the three states a save "
+        "can be interrupted in: `created` (empty temporary file), `written` (complete temporary file, "
+        "fsynced, not renamed) and `renamed` (the save is done). The test starts the child with the "
+        "point it wants, waits for the marker and sends SIGKILL, so each kill lands in that state on "
+        "every run; the rows below name the save and the point, and the checkpoint step the kill "
+        "implies is asserted exactly."
+    ),
+}
+"""A paragraph printed under a section's heading, before its table."""
 _PATH = re.compile(r"(?<![\w.])/(?:[^\s/:'\"(),|]+/)+(?=[^\s/:'\"(),|]+)")
 
 
@@ -78,7 +94,10 @@ def format_report(rows: list[dict], fuzz: dict | None, suite_status: int, second
     areas = [a for a in AREAS if any(r["area"] == a for r in rows)]
     areas += sorted({r["area"] for r in rows} - set(areas))
     for area in areas:
-        lines += [f"## {area[0].upper()}{area[1:]}", "", "| Case | Expected | Observed | Result |", "|---|---|---|---|"]
+        lines += [f"## {area[0].upper()}{area[1:]}", ""]
+        if area in AREA_NOTES:
+            lines += [AREA_NOTES[area], ""]
+        lines += ["| Case | Expected | Observed | Result |", "|---|---|---|---|"]
         for row in (r for r in rows if r["area"] == area):
             lines.append(
                 f"| {_cell(row['case'])} | {_cell(row['expected'])} | {_cell(row['observed'])} | "

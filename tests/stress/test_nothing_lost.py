@@ -5,27 +5,31 @@
    it, which is fsynced and then renamed over it. A static scan of pghm/ and viewer/ finds no
    other write call.
 2. A child process saves two versions of an avatar, a 50 MB .ply, a PNG and a motion file
-   over and over; it is killed with SIGKILL the moment a temporary file shows a save in
-   progress. Every file must then load and equal the old or the new version, never a mix.
+   over and over; it is killed with SIGKILL while it overwrites one of them, in each state a
+   save can be interrupted in (temporary file created, written, renamed). Every file must
+   then load and equal the old or the new version, never a mix, and the one being saved must
+   hold exactly the version that state implies.
 3. ``pghm train-prior`` and ``pghm fit`` (real subprocesses, tiny data set, 64 x 64 UV maps,
-   a checkpoint every step) are killed with SIGKILL at random moments and once in the middle
-   of a checkpoint save; each kill must land before the run ends (exit status -SIGKILL, the
-   checkpoint short of the last step; a run that finished first is retried with an earlier
-   kill); the checkpoint on disk loads, and ``--resume`` finishes the run with the parameters
-   an uninterrupted run reaches.
+   a checkpoint every step) are killed with SIGKILL between two checkpoint saves and in the
+   middle of one; the checkpoint on disk loads at exactly the step the kill point implies,
+   and ``--resume`` finishes the run with the parameters an uninterrupted run reaches.
+
+Every kill lands at a point the test chooses, on any machine at any load: the writer's
+fault-injection hook (``PGHM_TEST_PAUSE_SAVE``, :mod:`pghm.io.atomic`) makes the child create
+a marker file and sleep at the chosen point of the chosen save, and the test kills it once
+the marker exists. Nothing here waits for a moment it hopes to catch.
 """
 
 from __future__ import annotations
 
 import ast
 import builtins
+import contextlib
 import io
 import os
-import random
 import signal
 import subprocess
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -323,50 +327,86 @@ def test_no_other_write_calls_in_pghm_and_the_viewer():
 
 # ------------------------------------------------------------- 2. kill -9 during a save
 
+SAVE_POINTS = ("created", "written", "renamed")
+"""The states of a save a kill can interrupt (:mod:`pghm.io.atomic`'s test hook)."""
+VERSION_AFTER_KILL = {"created": 0, "written": 0, "renamed": 1}
+"""The version a file holds when its save of version 1 over version 0 is killed at each point."""
+STALE_AFTER_KILL = {"created": 1, "written": 1, "renamed": 0}
+"""Temporary files a kill at each point leaves beside the destination."""
+SAFETY_TIMEOUT = 600
+"""Seconds after which a child that neither paused nor ended is a hung test; never part of a verdict."""
 
-def _wait_for(predicate, timeout: float, poll: float = 0.0005) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(poll)
-    return False
+
+@dataclass
+class Kill:
+    landed: bool
+    """The child paused at the chosen point and SIGKILL ended it there (exit status -SIGKILL)."""
+    description: str
 
 
-@pytest.mark.parametrize("target", ["avatar.pt", "gaussians.ply"])
-def test_kill_during_a_save_over_an_existing_file(target, tmp_path):
-    versions = [output_versions(0), output_versions(1)]
-    child = subprocess.Popen(
-        [sys.executable, str(HERE / "save_loop.py"), str(tmp_path)], stdout=subprocess.PIPE, text=True
-    )
+def _kill_at(command: list[str], point: str, count: int, name: str, marker: Path, **popen) -> Kill:
+    """Run ``command`` with the save hook set to pause at the ``count``-th ``point`` of a save to a
+    file named ``name``, and SIGKILL it once it has paused there."""
+    from pghm.io.atomic import PAUSE_MARKER_VARIABLE, PAUSE_VARIABLE
+
+    marker.unlink(missing_ok=True)
+    env = dict(os.environ, **{PAUSE_VARIABLE: f"{point}:{count}:{name}", PAUSE_MARKER_VARIABLE: str(marker)})
+    process = subprocess.Popen(command, env=env, **popen)
     try:
-        assert child.stdout.readline().strip() == "ready"  # every file exists: saves now replace old files
-        saving = _wait_for(lambda: any(p.name.startswith(f".{target}.") for p in tmp_path.iterdir()), timeout=60)
-        child.send_signal(signal.SIGKILL)
+        for _ in range(int(SAFETY_TIMEOUT / 0.01)):
+            if marker.exists() or process.poll() is not None:
+                break
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                process.wait(timeout=0.01)
+        paused = marker.exists()
+        if paused:
+            process.send_signal(signal.SIGKILL)
     finally:
-        child.kill()
-        child.wait()
-    saving &= child.returncode == -signal.SIGKILL  # the save loop never ends by itself: anything else is a crash
-    temporaries = [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
+        process.kill()
+        process.wait()
+    landed = paused and process.returncode == -signal.SIGKILL
+    where = f"save #{count} of {name}, {point}"
+    if landed:
+        return Kill(True, f"killed (exit {process.returncode}) at {where}")
+    return Kill(False, f"NO KILL at {where}: the child never paused there (exit {process.returncode})")
+
+
+@pytest.mark.parametrize("point", SAVE_POINTS)
+@pytest.mark.parametrize("target", ["avatar.pt", "gaussians.ply"])
+def test_kill_during_a_save_over_an_existing_file(target, point, tmp_path):
+    versions = [output_versions(0), output_versions(1)]
+    out = tmp_path / "out"
+    out.mkdir()
+    # Save 1 of each file creates version 0 (save_loop's first round); save 2 overwrites it with version 1.
+    kill = _kill_at(
+        [sys.executable, str(HERE / "save_loop.py"), str(out)],
+        point,
+        2,
+        target,
+        tmp_path / "paused",
+        stdout=subprocess.DEVNULL,
+    )
+    temporaries = [p.name for p in out.iterdir() if p.name.startswith(f".{target}.")]
     outcomes = []
     intact = True
     for name in versions[0]:
-        path = tmp_path / name
+        path = out / name
         try:
             which = [index for index, version in enumerate(versions) if version[name][1](path)]
         except Exception as error:  # noqa: BLE001 - a damaged file: report what reading it raised
             which, intact = [], False
             outcomes.append(f"{name}: UNREADABLE ({type(error).__name__})")
             continue
-        intact &= len(which) == 1
+        expected = [VERSION_AFTER_KILL[point]] if name == target else [0, 1]
+        intact &= len(which) == 1 and which[0] in expected
         outcomes.append(f"{name}: version {which[0] if which else '?'}")
     check(
         "nothing lost",
-        f"kill -9 while {target} is being saved over the old one",
-        "every file loads and equals the old or the new version",
-        f"killed mid-save: {saving} (exit {child.returncode}, {len(temporaries)} stale temporary file left); "
-        + ", ".join(outcomes),
-        saving and intact,
+        f"kill -9 while {target} is being saved over the old one: temporary file {point}",
+        f"every file loads and equals the old or the new version; {target} is version "
+        f"{VERSION_AFTER_KILL[point]}, {STALE_AFTER_KILL[point]} stale temporary file",
+        f"{kill.description}; {len(temporaries)} stale temporary file; " + ", ".join(outcomes),
+        kill.landed and intact and len(temporaries) == STALE_AFTER_KILL[point],
     )
 
 
@@ -392,70 +432,6 @@ def _command(*args) -> list[str]:
     return [sys.executable, "-m", "pghm.cli.main", *map(str, args)]
 
 
-KILL_ATTEMPTS = 4
-"""Runs per kill at most: a run that ends before its kill is restarted from the same checkpoint."""
-MAX_KILL_DELAY = 1.0
-"""Seconds: a random kill comes up to this long after the first fresh checkpoint; halved on each retry."""
-
-
-@dataclass
-class Kill:
-    landed: bool
-    """SIGKILL ended the process (exit status -SIGKILL) before the run completed."""
-    description: str
-
-
-def _temporaries(checkpoint: Path) -> set[str]:
-    """Names of the checkpoint's temporary files: a save in progress, or one a kill interrupted."""
-    return {p.name for p in checkpoint.parent.iterdir() if p.name.startswith(f".{checkpoint.name}.")}
-
-
-def _kill_once(command: list[str], checkpoint: Path, how: str, delay: float) -> tuple[int, float]:
-    """Start ``command`` and SIGKILL it once it has written a checkpoint: ``delay`` s later ("random"),
-    or the moment a new checkpoint save is in progress ("mid-save"). Returns (exit status, seconds)."""
-    before = checkpoint.stat().st_mtime_ns if checkpoint.exists() else None
-    stale = _temporaries(checkpoint)  # left by an earlier kill: not a save in progress
-    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    started = time.monotonic()
-    ended = lambda: process.poll() is not None  # noqa: E731
-    try:
-        fresh = lambda: checkpoint.exists() and checkpoint.stat().st_mtime_ns != before  # noqa: E731
-        assert _wait_for(lambda: fresh() or ended(), timeout=300, poll=0.01), "no checkpoint was written"
-        if how == "random":
-            time.sleep(delay)
-        else:
-            saving = lambda: bool(_temporaries(checkpoint) - stale)  # noqa: E731
-            assert _wait_for(lambda: saving() or ended(), timeout=300), "no checkpoint save was seen in progress"
-        process.send_signal(signal.SIGKILL)
-    finally:
-        process.kill()
-        process.wait()
-    return process.returncode, time.monotonic() - started
-
-
-def _run_until_killed(command: list[str], checkpoint: Path, how: str, rng: random.Random, completed) -> Kill:
-    """Kill a run of ``command`` (see :func:`_kill_once`) and make sure the kill, not the run's end,
-    stopped it: exit status -SIGKILL and a checkpoint for which ``completed(payload)`` is false. A run
-    that got there first is restarted from the checkpoint it started from, with an earlier random
-    kill, up to KILL_ATTEMPTS times."""
-    from pghm.train.loop import load_checkpoint
-
-    snapshot = checkpoint.read_bytes() if checkpoint.exists() else None
-    bound, outcomes = MAX_KILL_DELAY, []
-    for attempt in range(1, KILL_ATTEMPTS + 1):
-        if snapshot is None:
-            checkpoint.unlink(missing_ok=True)
-        else:
-            checkpoint.write_bytes(snapshot)
-        code, seconds = _kill_once(command, checkpoint, how, rng.uniform(0.0, bound))
-        done = checkpoint.exists() and completed(load_checkpoint(checkpoint))
-        if code == -signal.SIGKILL and not done:
-            return Kill(True, f"killed (exit {code}) at {seconds:.1f} s ({how}, run {attempt})")
-        outcomes.append(f"exit {code}{', run completed' if done else ''}")
-        bound /= 2
-    return Kill(False, f"NO KILL LANDED in {KILL_ATTEMPTS} runs ({how}): " + "; ".join(outcomes))
-
-
 def _same_parameters(a: dict, b: dict) -> float:
     """Largest absolute difference between two state dicts (inf if their keys differ)."""
     if a.keys() != b.keys():
@@ -469,33 +445,46 @@ scale, so equal up to float reassociation in threaded kernels (test_train's resu
 1e-6 on 6 steps of a smaller model; this one is larger, 1e-5 leaves room)."""
 
 
-def _prior_completed(payload: dict) -> bool:
-    return payload["state"]["step"] >= PRIOR_STEPS
+def _stale(checkpoint: Path) -> int:
+    """How many temporary files of ``checkpoint`` lie beside it (left by a kill mid-save)."""
+    return sum(1 for p in checkpoint.parent.iterdir() if p.name.startswith(f".{checkpoint.name}."))
 
 
-def _fit_completed(payload: dict) -> bool:
-    return payload["extra"]["stage"] == len(FIT_STAGES) and payload["state"]["step"] >= FIT_STAGES[-1]
+def _kill_training(command, checkpoint: Path, point: str, count: int, marker: Path) -> tuple[Kill, dict]:
+    """Kill a training run at the ``count``-th checkpoint save's ``point``; (the kill, the checkpoint then on disk)."""
+    from pghm.train.loop import load_checkpoint
+
+    kill = _kill_at(
+        command, point, count, checkpoint.name, marker, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    return kill, load_checkpoint(checkpoint)  # must load: the last complete checkpoint
 
 
 @pytest.fixture(scope="module")
 def prior_run(tiny_dataset, tmp_path_factory):
-    """train-prior killed twice (at a random moment, then mid-checkpoint), resumed to the end."""
+    """train-prior killed between saves (after its 2nd checkpoint), then resumed and killed mid-save
+    (its first checkpoint written, not renamed), then resumed to the end."""
     from pghm.io.avatar import load_avatar
-    from pghm.train.loop import load_checkpoint
 
-    rng = random.Random(8)
-    out = tmp_path_factory.mktemp("killed_prior") / "prior.pt"
+    folder = tmp_path_factory.mktemp("killed_prior")
+    out = folder / "prior.pt"
     checkpoint = out.with_name(out.name + ".ckpt")
     base = _command("train-prior", tiny_dataset, "--out", out, "--steps", PRIOR_STEPS, *PRIOR_ARGS)
-    kills, events = [], []
-    for attempt, how in enumerate(("random", "mid-save")):
-        kill = _run_until_killed(base + (["--resume"] if attempt else []), checkpoint, how, rng, _prior_completed)
-        step = load_checkpoint(checkpoint)["state"]["step"]  # must load: the last complete checkpoint
-        kills.append(kill)
-        events.append(f"{kill.description}: checkpoint loads at step {step}")
-    resumed = subprocess.run(base + ["--resume"], capture_output=True, text=True, timeout=600)
+    between, after_between = _kill_training(base, checkpoint, "renamed", 2, folder / "paused")
+    stale_between = _stale(checkpoint)
+    mid_save, after_mid_save = _kill_training(base + ["--resume"], checkpoint, "written", 1, folder / "paused")
+    stale_mid_save = _stale(checkpoint)
+    steps = (after_between["state"]["step"], after_mid_save["state"]["step"])
+    events = [
+        f"between saves: {between.description}: checkpoint loads at step {steps[0]}, {stale_between} stale file",
+        f"mid-save after --resume: {mid_save.description}: checkpoint loads at step {steps[1]}, "
+        f"{stale_mid_save} stale file (the step-3 save never renamed)",
+    ]
+    # Step 2's checkpoint stays the last complete one through both kills; only the mid-save kill leaves a temporary.
+    landed = between.landed and mid_save.landed and steps == (2, 2) and (stale_between, stale_mid_save) == (0, 1)
+    resumed = subprocess.run(base + ["--resume"], capture_output=True, text=True, timeout=SAFETY_TIMEOUT)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
-    return out, all(kill.landed for kill in kills), events, load_avatar(out)
+    return out, landed, events, load_avatar(out)
 
 
 def test_kill_9_during_train_prior_then_resume(prior_run, tiny_dataset, tmp_path):
@@ -513,9 +502,9 @@ def test_kill_9_during_train_prior_then_resume(prior_run, tiny_dataset, tmp_path
     difference = _same_parameters(straight.model.state_dict(), resumed.model.state_dict())
     check(
         "nothing lost",
-        "kill -9 during pghm train-prior, twice, then --resume",
-        f"each kill lands before the run ends; last checkpoint loads; resumed run ends at step {PRIOR_STEPS} "
-        f"with the uninterrupted run's parameters (max diff <= {RESUME_TOLERANCE:g})",
+        "kill -9 during pghm train-prior, between saves and mid-save, then --resume",
+        f"each kill lands where chosen; the step-2 checkpoint loads after both; resumed run ends at step "
+        f"{PRIOR_STEPS} with the uninterrupted run's parameters (max diff <= {RESUME_TOLERANCE:g})",
         "; ".join(events) + f"; resumed to step {resumed.metadata['steps']}, max parameter diff {difference:.1e}",
         landed and resumed.metadata["steps"] == PRIOR_STEPS and difference <= RESUME_TOLERANCE,
     )
@@ -524,7 +513,7 @@ def test_kill_9_during_train_prior_then_resume(prior_run, tiny_dataset, tmp_path
 def test_kill_9_during_fit_then_resume(prior_run, tiny_dataset, tmp_path):
     from pghm.io.avatar import load_avatar
     from pghm.train.fit import FitConfig, fit
-    from pghm.train.loop import LoopConfig, load_checkpoint
+    from pghm.train.loop import LoopConfig
 
     prior, _, _, _ = prior_run
     subject = tiny_dataset / "subject_000"
@@ -545,11 +534,11 @@ def test_kill_9_during_fit_then_resume(prior_run, tiny_dataset, tmp_path):
         "--checkpoint-every",
         "1",
     )
-    rng = random.Random(9)
-    kill = _run_until_killed(base, checkpoint, "random", rng, _fit_completed)
-    payload = load_checkpoint(checkpoint)
-    event = f"{kill.description}: checkpoint loads (stage {payload['extra']['stage']}, step {payload['state']['step']})"
-    resumed = subprocess.run(base + ["--resume"], capture_output=True, text=True, timeout=600)
+    # The 2nd checkpoint save is stage 2's first step: the kill falls between the stages' saves.
+    kill, payload = _kill_training(base, checkpoint, "renamed", 2, tmp_path / "paused")
+    where = (payload["extra"]["stage"], payload["state"]["step"])
+    event = f"{kill.description}: checkpoint loads (stage {where[0]}, step {where[1]})"
+    resumed = subprocess.run(base + ["--resume"], capture_output=True, text=True, timeout=SAFETY_TIMEOUT)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     avatar = load_avatar(out)
     config = FitConfig(
@@ -564,9 +553,9 @@ def test_kill_9_during_fit_then_resume(prior_run, tiny_dataset, tmp_path):
     )
     check(
         "nothing lost",
-        "kill -9 during pghm fit, then --resume",
-        f"the kill lands before the run ends; last checkpoint loads; resumed avatar equals an uninterrupted "
-        f"fit (max diff <= {RESUME_TOLERANCE:g})",
+        "kill -9 during pghm fit between stage 2's saves, then --resume",
+        f"the kill lands where chosen; the checkpoint loads at stage 2, step 1; resumed avatar equals an "
+        f"uninterrupted fit (max diff <= {RESUME_TOLERANCE:g})",
         f"{event}; max parameter diff {difference:.1e}",
-        kill.landed and difference <= RESUME_TOLERANCE,
+        kill.landed and where == (2, 1) and difference <= RESUME_TOLERANCE,
     )
