@@ -104,13 +104,14 @@ def viewer(display, avatar_file):
     torch.set_num_threads(2)
     app = Viewer(avatar_file, window_size=WINDOW)
     app.setup()
-    app.frame()
+    app.settle()
     yield app
     app.teardown()
 
 
 def scene_shot(viewer, path: Path) -> np.ndarray:
-    """The scene viewport's pixels (no UI) after one frame, as written to ``path``."""
+    """The scene viewport's settled pixels (no UI; the model worker has delivered), as written to ``path``."""
+    viewer.settle()
     viewer.screenshot(path, include_ui=False)
     viewer.frame()
     on_disk = iio.imread(path)
