@@ -61,6 +61,15 @@ class OrbitView:
         """(3,) float32 camera centre, target moved by ``offset``."""
         return self.camera(offset, 2, 2).centre.numpy().astype(np.float32)
 
+    def degrees_to(self, other: OrbitView) -> float:
+        """Angle between the two viewing directions (from the target to the camera), degrees."""
+        a, b = self._direction(), other._direction()
+        return math.degrees(math.acos(float(np.clip(a @ b, -1.0, 1.0))))
+
+    def _direction(self) -> np.ndarray:
+        yaw, pitch = math.radians(self.yaw), math.radians(self.pitch)
+        return np.array([math.cos(pitch) * math.sin(yaw), math.sin(pitch), math.cos(pitch) * math.cos(yaw)])
+
 
 @dataclass
 class OrbitController:

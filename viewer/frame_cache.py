@@ -2,14 +2,17 @@
 
 A motion frame costs the model and skinning (~20-30 ms on 2 cores) to evaluate and a few
 hundred kilobytes to keep, so after one pass over a clip every frame is drawn from memory.
-A frame is stored packed (:class:`PackedFrame`): positions in float32 and the other fields
-in float16 where the image stays within the GL-vs-CPU bar (max abs error 2e-3, mean 1e-4;
-measured in docs/viewer.md, tested in tests/test_viewer_worker.py):
+A frame is stored packed (:class:`PackedFrame`): what decides a footprint (position, scale,
+opacity) in float32, colours and normals in float16, which keeps the image within the
+GL-vs-CPU bar (max abs error 2e-3, mean 1e-4; tests/test_gl_vs_cpu_avatar.py):
 
-    per Gaussian: means 3 x 4 B + scales 2 B + colours 3 x 2 B + opacities 2 B + normals 3 x 2 B = 28 B
+    per Gaussian: means 3 x 4 B + scales 4 B + opacities 4 B + colours 3 x 2 B + normals 3 x 2 B = 32 B
 
-(44 B in float32); 11,156 Gaussians -> 312 KB a frame. Positions stay float32 because
-float16 rounds a coordinate near 1 m to 0.5 mm, a fifth of a pixel at 1280 x 720.
+(44 B in float32); 11,156 Gaussians -> 357 KB a frame. Measured on the shipped avatar at
+1280 x 720 (docs/viewer.md): float16 colours change a pixel by at most ~2.4e-4; float16
+scales (and opacities) move the 1/255 footprint cut-off and flip pixels on silhouettes by
+up to 1/255 = 3.9e-3, over the bar; float16 positions would round a coordinate near 1 m
+by 0.5 mm, a fifth of a pixel.
 
 :class:`FrameCache` maps a key (the scene state that made the frame, the frame index) to a
 packed frame and evicts the least recently used frames while the total exceeds the budget.
@@ -29,12 +32,12 @@ from pghm.errors import PghmError
 from pghm.render import GaussianArrays
 
 DEFAULT_BUDGET_MB = 256.0
-"""Default memory budget of the frame cache (~800 frames of the shipped avatar)."""
+"""Default memory budget of the frame cache (~750 frames of the shipped avatar)."""
 MEGABYTE = 1 << 20
-POSITION_DTYPE = np.float32
-"""Means: float16 would round a coordinate near 1 m by up to 0.5 mm (a fifth of a pixel)."""
-ATTRIBUTE_DTYPE = np.float16
-"""Scales, colours, opacities, normals: within the GL-vs-CPU bar in half precision (measured)."""
+FOOTPRINT_DTYPE = np.float32
+"""Means, scales, opacities: in float16 they move footprint cut-offs (flips over the bar)."""
+SHADE_DTYPE = np.float16
+"""Colours and normals: within the GL-vs-CPU bar in half precision (measured)."""
 
 
 @dataclass(frozen=True)
@@ -43,9 +46,9 @@ class PackedFrame:
 
     Attributes:
         means: (N, 3) float32.
-        scales: (N,) float16.
+        scales: (N,) float32.
         colors: (N, 3) float16.
-        opacities: (N,) float16.
+        opacities: (N,) float32.
         normals: (N, 3) float16.
         view: what the view-dependent colour was evaluated for (compared by the caller).
     """
@@ -61,11 +64,11 @@ class PackedFrame:
     def pack(arrays: GaussianArrays, view: Hashable = None) -> PackedFrame:
         """``arrays`` rounded to the cache's precision (a copy)."""
         return PackedFrame(
-            means=np.ascontiguousarray(arrays.means, POSITION_DTYPE),
-            scales=arrays.scales.astype(ATTRIBUTE_DTYPE),
-            colors=arrays.colors.astype(ATTRIBUTE_DTYPE),
-            opacities=arrays.opacities.astype(ATTRIBUTE_DTYPE),
-            normals=arrays.normals.astype(ATTRIBUTE_DTYPE),
+            means=arrays.means.astype(FOOTPRINT_DTYPE),
+            scales=arrays.scales.astype(FOOTPRINT_DTYPE),
+            colors=arrays.colors.astype(SHADE_DTYPE),
+            opacities=arrays.opacities.astype(FOOTPRINT_DTYPE),
+            normals=arrays.normals.astype(SHADE_DTYPE),
             view=view,
         )
 
@@ -73,9 +76,9 @@ class PackedFrame:
         """The frame as float32 :class:`GaussianArrays` (what the renderer takes)."""
         return GaussianArrays(
             means=self.means,
-            scales=self.scales.astype(np.float32),
+            scales=self.scales,
             colors=self.colors.astype(np.float32),
-            opacities=self.opacities.astype(np.float32),
+            opacities=self.opacities,
             normals=self.normals.astype(np.float32),
         )
 

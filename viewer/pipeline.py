@@ -9,8 +9,10 @@ the frame the timeline names, the orbit view. :meth:`ScenePipeline.update` decid
 * what to ask the model worker (:class:`~viewer.worker.LatestRequestWorker`): when still,
   the exact evaluation of (state, frame, camera centre); while a slider or the timeline is
   dragged, the newest (state, frame), unless the frame cache has it; while playing, nothing
-  (the prefetcher fills the clip ahead of the playhead); never anything for a camera that
-  only moves;
+  (the prefetcher fills the clip ahead of the playhead, for the *colour view*); for a
+  camera that only moves, nothing until it has turned COLOUR_REFRESH_DEGREES from the
+  colour view (the view the view-dependent colour was last made for), then one request
+  and that view becomes the colour view;
 * what to draw, best first: the exact evaluation; the cached frame of (state, frame); a
   finished evaluation of (state, frame) for another view; else the Gaussians drawn last
   (the HUD then shows the update as pending).
@@ -35,6 +37,9 @@ from viewer.prefetch import ClipPlan, ClipPrefetcher
 from viewer.scene import Evaluated, SceneRequest, SceneSnapshot, evaluate_request
 from viewer.worker import LatestRequestWorker
 
+COLOUR_REFRESH_DEGREES = 20.0
+"""While the view moves, view-dependent colour is re-evaluated (in the worker) each time the view
+has turned this far from the view it was last made for; otherwise once the view is still."""
 WORKER_THREADS = 2
 """torch threads (process-wide, the UI thread runs almost no torch) while the worker evaluates."""
 
@@ -104,7 +109,7 @@ class ScenePipeline:
         self._view: OrbitView | None = None
         self._state: tuple | None = None
         self._view_at = self._state_at = -math.inf
-        self._still_view: OrbitView | None = None
+        self._colour_view: OrbitView | None = None
         self._posted: tuple | None = None
 
     def close(self) -> None:
@@ -141,15 +146,16 @@ class ScenePipeline:
             self._view_at = self._state_at = -math.inf
         settle = self.settings.settle_seconds
         view_still = now - self._view_at >= settle
-        if view_still or self._still_view is None:
-            self._still_view = view
+        turned = self._colour_view is None or view.degrees_to(self._colour_view) > COLOUR_REFRESH_DEGREES
+        if view_still or turned:
+            self._colour_view = view
         moving = playing or not view_still or now - self._state_at < settle
 
         request = snapshot.request(frame, view, offset)
         cached = self.cache.get(state)
         if not moving:
             self._post(request)
-        elif not playing and state != self.shown.state and cached is None:
+        elif not playing and ((state != self.shown.state and cached is None) or turned):
             self._post(request)  # a drag: the newest (state, frame) wins
         if block:
             self.worker.wait_idle()
@@ -168,7 +174,7 @@ class ScenePipeline:
         """Prefetch the clip while it plays or while everything is still; not during a drag or an orbit."""
         plan = None
         if snapshot.motion.num_frames > 1 and (playing or not moving):
-            plan = ClipPlan(snapshot, self._still_view, (frame + 1) % snapshot.motion.num_frames if playing else frame, loop)
+            plan = ClipPlan(snapshot, self._colour_view, (frame + 1) % snapshot.motion.num_frames if playing else frame, loop)
         if self.prefetcher.set_plan(plan):
             self.worker.wake()
 

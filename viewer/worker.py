@@ -114,6 +114,12 @@ class LatestRequestWorker(Generic[Request, Result]):
         with self._lock:
             return self._lock.wait_for(lambda: self._waiting is None and self._running is None, timeout)
 
+    def wait_background_idle(self, timeout: float | None = None) -> bool:
+        """Block until no request is left and the background job reported nothing left; False on timeout."""
+        with self._lock:
+            done = lambda: self._waiting is None and self._running is None and self._background_idle  # noqa: E731
+            return self._lock.wait_for(done, timeout)
+
     def close(self) -> None:
         """Stop the thread after the step it is in."""
         with self._lock:
@@ -142,6 +148,7 @@ class LatestRequestWorker(Generic[Request, Result]):
                 with self._lock:
                     if not more:
                         self._background_idle = True
+                        self._lock.notify_all()
                 continue
             serial, request = job
             try:
