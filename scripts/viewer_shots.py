@@ -6,13 +6,14 @@ One command (Xvfb provides the window; re-run after the shipped avatar changes):
 
 * viewer_screenshot.png: the default window (1280 x 800) on the shipped avatar at frame 20
   of the shipped Mixamo walk, settled (the exact frame), the clip list showing the clip.
-* viewer_motion_strip.png: window screenshots while the walk plays and the camera orbits
-  (reduced internal resolution in the HUD), then the settled frame, half size, in a grid.
+* viewer_motion_strip.png: window screenshots while the cached walk plays and the camera
+  orbits (reduced internal resolution in the HUD), then the settled frame, half size, in a grid.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -20,11 +21,16 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from viewer.settings import DEFAULT_AVATAR, SHIPPED_MOTIONS, WINDOW_SIZE
+from viewer.settings import WINDOW_SIZE
 from viewer.viewer import Viewer
 
-DOCS = Path(__file__).resolve().parent.parent / "docs"
-WALK = SHIPPED_MOTIONS / "mixamo_walk_69f.bvh"
+ROOT = Path(__file__).resolve().parent.parent
+DOCS = ROOT / "docs"
+AVATAR = Path("assets/avatar.pt")
+"""Relative to the repository (the path field shows it; no machine's absolute path in the docs)."""
+WALK = Path("assets/motion/mixamo_walk_69f.bvh")
+IDLE_FRAMES = 20
+"""Frames drawn before the screenshot, so that its HUD shows an idle frame's fps, not the settling."""
 SCREENSHOT_FRAME = 20
 STRIP_SHOTS = 5
 """Moving frames in the strip (a settled one follows)."""
@@ -37,22 +43,24 @@ STRIP_SCALE = 0.5
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--avatar", type=Path, default=DEFAULT_AVATAR)
     parser.add_argument("--out", type=Path, default=DOCS)
     args = parser.parse_args()
-    viewer = Viewer(args.avatar, window_size=WINDOW_SIZE)
+    out = args.out.resolve()
+    os.chdir(ROOT)
+    viewer = Viewer(AVATAR, window_size=WINDOW_SIZE)
     viewer.setup()
     try:
         viewer.open_motion(str(WALK))
         viewer.scrub_to(SCREENSHOT_FRAME)
         viewer.settle()
-        screenshot = args.out / "viewer_screenshot.png"
+        viewer.pipeline.worker.wait_background_idle()  # the clip is cached: the HUD shows its fill
+        for _ in range(IDLE_FRAMES):
+            viewer.frame()
+        screenshot = out / "viewer_screenshot.png"
         viewer.screenshot(screenshot, include_ui=True)
         viewer.frame()
         print(f"wrote {screenshot}")
 
-        # The prefetcher fills the clip (what a user sees a few seconds after opening it).
-        viewer.pipeline.worker.wait_background_idle()
         viewer.set_playing(True)
         shots = []
         for _ in range(STRIP_SHOTS):
@@ -65,7 +73,7 @@ def main() -> None:
         time.sleep(viewer.resolution.settings.settle_seconds)
         viewer.settle()
         shots.append(capture(viewer))
-        strip = args.out / "viewer_motion_strip.png"
+        strip = out / "viewer_motion_strip.png"
         save_grid(shots, strip)
         print(f"wrote {strip}")
     finally:
@@ -77,6 +85,7 @@ def capture(viewer: Viewer) -> np.ndarray:
     with tempfile.TemporaryDirectory() as folder:
         viewer.screenshot(Path(folder) / "shot.png", include_ui=True)
         viewer.frame()
+    viewer.message = None  # the panel's "saved ..." line would show the temporary path next time
     return viewer.last_screenshot
 
 
@@ -89,7 +98,8 @@ def save_grid(images: list[np.ndarray], path: Path) -> None:
     width, height = scaled[0].size
     gap = 4
     rows = -(-len(scaled) // STRIP_COLUMNS)
-    grid = Image.new("RGB", (STRIP_COLUMNS * width + (STRIP_COLUMNS - 1) * gap, rows * height + (rows - 1) * gap), "white")
+    size = (STRIP_COLUMNS * width + (STRIP_COLUMNS - 1) * gap, rows * height + (rows - 1) * gap)
+    grid = Image.new("RGB", size, "white")
     for k, image in enumerate(scaled):
         grid.paste(image, ((k % STRIP_COLUMNS) * (width + gap), (k // STRIP_COLUMNS) * (height + gap)))
     grid.save(path, optimize=True)

@@ -154,9 +154,9 @@ def test_double_projection_by_default_and_the_float_fallback_meets_the_bar(gl, p
 @pytest.mark.parametrize("pose", list(POSES))
 def test_cached_frames_in_half_precision_stay_within_the_bar(gl, posed, pose):
     """The viewer's frame cache keeps scales, colours and opacities in float16
-    (viewer.frame_cache.PackedFrame): drawn from the cache, the image stays within the bar of
+    (pghm.render.frame_cache.PackedFrame): drawn from the cache, the image stays within the bar of
     the exact splatter image of the full-precision Gaussians, at the 1280 x 720 the viewer uses."""
-    from viewer.frame_cache import PackedFrame
+    from pghm.render.frame_cache import PackedFrame
 
     arrays = posed[pose]
     cached = PackedFrame.pack(arrays).unpack()

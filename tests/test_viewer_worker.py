@@ -17,9 +17,9 @@ import pytest
 
 from pghm.errors import PghmError
 from pghm.render import GaussianArrays
+from pghm.render.frame_cache import FrameCache, PackedFrame, frames_ahead
 from viewer.camera import OrbitView
 from viewer.dynamic_resolution import SCALE_STEP, ResolutionController, ResolutionSettings
-from viewer.frame_cache import FrameCache, PackedFrame, frames_ahead
 from viewer.pipeline import ScenePipeline
 from viewer.scene import Evaluated, SceneRequest
 from viewer.worker import LatestRequestWorker

@@ -30,9 +30,9 @@ import numpy as np
 import torch
 
 from pghm.render import GaussianArrays
+from pghm.render.frame_cache import FrameCache
 from viewer.camera import OrbitView
 from viewer.dynamic_resolution import ResolutionSettings
-from viewer.frame_cache import FrameCache
 from viewer.prefetch import ClipPlan, ClipPrefetcher
 from viewer.scene import Evaluated, SceneRequest, SceneSnapshot, evaluate_request
 from viewer.worker import LatestRequestWorker
@@ -135,7 +135,8 @@ class ScenePipeline:
             offset: (3,) the camera target's shift at ``frame`` (following the body).
             playing: the clip plays (frames come from the prefetched cache).
             settled: treat the view as still now (tests, scripts, screenshots).
-            block: wait for the exact evaluation (fixed-rate recording of a motion).
+            block: wait for the exact evaluation, no prefetching (fixed-rate recording of a
+                motion; the synchronous viewer).
         """
         state = (snapshot.key, frame)
         if view != self._view:
@@ -159,7 +160,7 @@ class ScenePipeline:
             self._post(request)  # a drag: the newest (state, frame) wins
         if block:
             self.worker.wait_idle()
-        self._plan(snapshot, frame, playing, loop, moving)
+        self._plan(snapshot, frame, playing, loop, wanted=not block and (playing or not moving))
 
         self.shown = self._choose(request, state, cached)
         pending = self.worker.pending > 0 or self.shown.state != state or (not moving and not self.shown.exact)
@@ -170,11 +171,12 @@ class ScenePipeline:
             self.worker.post(request)
             self._posted = request.key
 
-    def _plan(self, snapshot: SceneSnapshot, frame: int, playing: bool, loop: bool, moving: bool) -> None:
-        """Prefetch the clip while it plays or while everything is still; not during a drag or an orbit."""
+    def _plan(self, snapshot: SceneSnapshot, frame: int, playing: bool, loop: bool, wanted: bool) -> None:
+        """Prefetch the clip when ``wanted``: while it plays or while everything is still, not during a drag."""
         plan = None
-        if snapshot.motion.num_frames > 1 and (playing or not moving):
-            plan = ClipPlan(snapshot, self._colour_view, (frame + 1) % snapshot.motion.num_frames if playing else frame, loop)
+        if snapshot.motion.num_frames > 1 and wanted:
+            playhead = (frame + 1) % snapshot.motion.num_frames if playing else frame
+            plan = ClipPlan(snapshot, self._colour_view, playhead, loop)
         if self.prefetcher.set_plan(plan):
             self.worker.wake()
 

@@ -3,7 +3,7 @@
 The UI hands the prefetcher a :class:`ClipPlan` (the scene state, the settled view, the
 playhead) whenever the clip plays or the view settles; each :meth:`ClipPrefetcher.step`
 evaluates one frame: the first frame in playing order from the playhead
-(:func:`~viewer.frame_cache.frames_ahead`) that is missing from the cache or whose
+(:func:`~pghm.render.frame_cache.frames_ahead`) that is missing from the cache or whose
 view-dependent colour was made for another view. Only as many frames as the budget holds
 are visited, so a clip longer than the cache does not evict the frames about to play.
 """
@@ -14,8 +14,8 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from pghm.render.frame_cache import FrameCache, PackedFrame, frames_ahead
 from viewer.camera import OrbitView
-from viewer.frame_cache import FrameCache, PackedFrame, frames_ahead
 from viewer.scene import Evaluated, SceneRequest, SceneSnapshot
 
 

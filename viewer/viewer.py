@@ -29,9 +29,9 @@ import numpy as np
 from pghm.errors import PghmError
 from pghm.io.avatar import load_avatar
 from pghm.render import GaussianArrays, GaussianSet
+from pghm.render.frame_cache import DEFAULT_BUDGET_MB, MEGABYTE, FrameCache
 from viewer.camera import OrbitController
 from viewer.dynamic_resolution import ResolutionController, ResolutionSettings
-from viewer.frame_cache import DEFAULT_BUDGET_MB, MEGABYTE, FrameCache
 from viewer.panels import PanelState, draw_panels, handle_mouse
 from viewer.pipeline import FrameStatus, ScenePipeline, Shown
 from viewer.recording import Recording, RecordSource, save_png, start_recording
@@ -112,6 +112,9 @@ class Viewer:
         self.status: FrameStatus | None = None
         """The last frame's choice of Gaussians (moving, pending)."""
         self._settled = False
+        self.synchronous = False
+        """Wait for the model in every frame and draw it exactly (the viewer before the worker;
+        benchmarks compare against it); a fixed-rate motion recording does so too."""
         self._requests = _Requests()
         self._cache = _Cache()
         self._last_frame = time.perf_counter()
@@ -210,7 +213,7 @@ class Viewer:
         offset = snapshot.camera_offset(state.frame)
         self.camera.offset = offset
         camera = self.camera.camera(viewport[2], viewport[3])
-        block = recording is not None and recording.source == "motion"
+        block = self.synchronous or (recording is not None and recording.source == "motion")
         self.status = self.pipeline.update(
             snapshot,
             state.frame,
@@ -331,7 +334,8 @@ class Viewer:
             if hud.scene_redrawn:
                 target = self.scene_cache.target((viewport[2], viewport[3]))
                 internal = self.camera.camera(width, height) if (width, height) != viewport[2:] else camera
-                timings = self.renderer.draw(internal, display.background, target=target, viewport=(0, 0, *viewport[2:]))
+                full = (0, 0, *viewport[2:])
+                timings = self.renderer.draw(internal, display.background, target=target, viewport=full)
                 hud.sort_ms, hud.draw_ms = timings.sort_ms, timings.draw_ms
                 hud.upload_ms = self._cache.set_gaussians_ms + timings.upload_ms
                 self._cache.set_gaussians_ms = 0.0

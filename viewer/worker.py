@@ -5,7 +5,7 @@ edit, a timeline move, the settled view) and keeps drawing the last finished res
 request posted while another waits replaces it (the older one is dropped, never queued),
 so a slider drag costs at most one evaluation behind the newest value. When no request
 waits, the worker runs background steps (:class:`BackgroundJob`, e.g. evaluating motion
-frames ahead of the playhead into :class:`viewer.frame_cache.FrameCache`), one short step at
+frames ahead of the playhead into :class:`pghm.render.frame_cache.FrameCache`), one short step at
 a time so that a new request waits at most one step.
 
 A thread, not a process: torch releases the GIL inside its kernels, the model's weights and
@@ -117,8 +117,9 @@ class LatestRequestWorker(Generic[Request, Result]):
     def wait_background_idle(self, timeout: float | None = None) -> bool:
         """Block until no request is left and the background job reported nothing left; False on timeout."""
         with self._lock:
-            done = lambda: self._waiting is None and self._running is None and self._background_idle  # noqa: E731
-            return self._lock.wait_for(done, timeout)
+            return self._lock.wait_for(
+                lambda: self._waiting is None and self._running is None and self._background_idle, timeout
+            )
 
     def close(self) -> None:
         """Stop the thread after the step it is in."""

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pghm.errors import PghmError
-from pghm.render import GaussianArrays
+from pghm.render.driver import GaussianArrays
 
 DEFAULT_BUDGET_MB = 256.0
 """Default memory budget of the frame cache (~750 frames of the shipped avatar)."""
@@ -61,14 +61,15 @@ class PackedFrame:
     view: Hashable = None
 
     @staticmethod
-    def pack(arrays: GaussianArrays, view: Hashable = None) -> PackedFrame:
-        """``arrays`` rounded to the cache's precision (a copy)."""
+    def pack(arrays: GaussianArrays, view: Hashable = None, exact: bool = False) -> PackedFrame:
+        """``arrays`` rounded to the cache's precision (a copy); ``exact`` keeps every field float32."""
+        shade = FOOTPRINT_DTYPE if exact else SHADE_DTYPE
         return PackedFrame(
             means=arrays.means.astype(FOOTPRINT_DTYPE),
             scales=arrays.scales.astype(FOOTPRINT_DTYPE),
-            colors=arrays.colors.astype(SHADE_DTYPE),
+            colors=arrays.colors.astype(shade),
             opacities=arrays.opacities.astype(FOOTPRINT_DTYPE),
-            normals=arrays.normals.astype(SHADE_DTYPE),
+            normals=arrays.normals.astype(shade),
             view=view,
         )
 
