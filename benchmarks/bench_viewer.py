@@ -299,7 +299,8 @@ SLIDER_DRAG = np.linspace(0.0, 90.0, 24)
 """Degrees of the left elbow on consecutive frames of a drag."""
 LATENCY_FRAMES = 400
 """At most this many frames wait for the dragged pose to appear."""
-PASS_KEYS = ("playback", "scrub_first_pass", "scrub_cached", "orbit_moving", "slider_ui")
+PASS_KEYS = ("idle", "playback", "scrub_first_pass", "scrub_cached", "orbit_moving", "slider_ui")
+"""idle: nothing changes (UI and the cached scene image only), the floor of every other frame."""
 
 
 def frame_times(viewer, frames: int, action) -> list[float]:
@@ -329,6 +330,7 @@ def interactive_pass(viewer, frames: int, synchronous: bool) -> dict:
     out["scrub_first_pass"] = frame_times(viewer, min(frames, num_frames), lambda k: viewer.scrub_to(k))
     viewer.settle()
     viewer.pipeline.worker.wait_background_idle()  # the clip is cached after one pass
+    out["idle"] = frame_times(viewer, frames, lambda k: None)
     out["cache_frames"] = len(viewer.pipeline.cache)
     out["cache_mb"] = viewer.pipeline.cache.nbytes / 2**20
     out["scrub_cached"] = frame_times(viewer, frames, lambda k: viewer.scrub_to((7 * k) % num_frames))

@@ -6,8 +6,9 @@ One command (Xvfb provides the window; re-run after the shipped avatar changes):
 
 * viewer_screenshot.png: the default window (1280 x 800) on the shipped avatar at frame 20
   of the shipped Mixamo walk, settled (the exact frame), the clip list showing the clip.
-* viewer_motion_strip.png: window screenshots while the cached walk plays and the camera
-  orbits (reduced internal resolution in the HUD), then the settled frame, half size, in a grid.
+* viewer_motion_strip.png: window screenshots while the camera orbits the paused walk, then
+  while the cached walk plays (reduced internal resolution in the HUD), then the settled
+  frame, half size, in a grid.
 """
 
 from __future__ import annotations
@@ -32,8 +33,10 @@ WALK = Path("assets/motion/mixamo_walk_69f.bvh")
 IDLE_FRAMES = 20
 """Frames drawn before the screenshot, so that its HUD shows an idle frame's fps, not the settling."""
 SCREENSHOT_FRAME = 20
-STRIP_SHOTS = 5
-"""Moving frames in the strip (a settled one follows)."""
+ORBIT_SHOTS = 3
+"""Frames of the strip while the camera orbits the paused clip."""
+PLAY_SHOTS = 2
+"""Frames of the strip while the clip plays (a settled one follows)."""
 FRAMES_BETWEEN_SHOTS = 6
 ORBIT_PIXELS_PER_FRAME = 12.0
 """Mouse pixels of orbit per frame while the strip plays (4.8 degrees)."""
@@ -59,15 +62,22 @@ def main() -> None:
         screenshot = out / "viewer_screenshot.png"
         viewer.screenshot(screenshot, include_ui=True)
         viewer.frame()
+        viewer.message = None  # "saved <absolute path>" would show in the strip's panel
         print(f"wrote {screenshot}")
 
-        viewer.set_playing(True)
         shots = []
-        for _ in range(STRIP_SHOTS):
+        for _ in range(ORBIT_SHOTS):  # orbiting the paused frame
             for _ in range(FRAMES_BETWEEN_SHOTS):
                 viewer.orbit(ORBIT_PIXELS_PER_FRAME, 0.0)
                 viewer.frame()
             viewer.orbit(ORBIT_PIXELS_PER_FRAME, 0.0)
+            shots.append(capture(viewer))
+        viewer.settle()
+        viewer.pipeline.worker.wait_background_idle()  # the clip's colour for this view
+        viewer.set_playing(True)
+        for _ in range(PLAY_SHOTS):  # playing from the cache
+            for _ in range(FRAMES_BETWEEN_SHOTS):
+                viewer.frame()
             shots.append(capture(viewer))
         viewer.set_playing(False)
         time.sleep(viewer.resolution.settings.settle_seconds)

@@ -220,3 +220,21 @@ def test_driver_reuses_arrays_only_for_the_same_output_and_set():
     assert driver.evaluate(identity, driver.rest_pose(), centre, "dynamic") is dynamic
     static = driver.evaluate(identity, driver.rest_pose(), centre, "static")
     assert static is not dynamic and not np.array_equal(static.colors, dynamic.colors)
+
+
+def test_the_clip_list_offers_rest_the_procedural_and_the_shipped_clips(monkeypatch):
+    from pghm.data.procedural import PROCEDURAL_MOTIONS
+    from viewer.scene import clip_choices, clip_index
+    from viewer.settings import SHIPPED_MOTIONS
+
+    choices = clip_choices()
+    labels = [label for label, _ in choices]
+    shipped = sorted(SHIPPED_MOTIONS.glob("*.bvh"))
+    assert shipped, "the repository ships motion clips"
+    assert labels == ["rest", *PROCEDURAL_MOTIONS, *(path.stem for path in shipped)]
+    root = SHIPPED_MOTIONS.parent.parent
+    monkeypatch.chdir(root)
+    relative = shipped[0].relative_to(root)
+    assert clip_index(choices, str(relative)) == labels.index(shipped[0].stem), "a relative path finds its clip"
+    assert clip_index(choices, "squat") == labels.index("squat")
+    assert clip_index(choices, "elsewhere/other.bvh") == -1

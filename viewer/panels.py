@@ -17,7 +17,7 @@ from imgui_bundle import imgui
 
 from viewer.camera import FOV_RANGE, SNAP_VIEWS
 from viewer.identity import COMPONENT_RANGE, GAIN_RANGE
-from viewer.scene import ANGLE_LIMIT, AXES, POSE_JOINTS, SPEED_RANGE, clip_choices
+from viewer.scene import ANGLE_LIMIT, AXES, POSE_JOINTS, SPEED_RANGE, clip_choices, clip_index
 from viewer.settings import PANEL_WIDTH, RENDER_SCALES, SCALE_RANGE, SHIPPED_MOTIONS
 
 if TYPE_CHECKING:
@@ -164,11 +164,9 @@ def _motion_section(viewer: Viewer, state: PanelState) -> None:
     scene = viewer.scene
     pose_state = scene.pose_state
     choices = clip_choices()
-    sources = [source for _, source in choices]
-    current = sources.index(scene.motion_name) if scene.motion_name in sources else -1
-    changed, picked = imgui.combo("clip", current, [label for label, _ in choices])
+    changed, picked = imgui.combo("clip", clip_index(choices, scene.motion_name), [label for label, _ in choices])
     if changed:
-        viewer.try_action(viewer.open_motion, sources[picked])
+        viewer.try_action(viewer.open_motion, choices[picked][1])
     _, state.motion_path = imgui.input_text("##motion", state.motion_path)
     imgui.same_line()
     if imgui.button("Open motion"):

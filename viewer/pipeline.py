@@ -150,7 +150,7 @@ class ScenePipeline:
         turned = self._colour_view is None or view.degrees_to(self._colour_view) > COLOUR_REFRESH_DEGREES
         if view_still or turned:
             self._colour_view = view
-        moving = playing or not view_still or now - self._state_at < settle
+        moving = not block and (playing or not view_still or now - self._state_at < settle)
 
         request = snapshot.request(frame, view, offset)
         cached = self.cache.get(state)

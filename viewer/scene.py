@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import roma
@@ -48,6 +49,17 @@ def clip_choices() -> list[tuple[str, str]]:
     """(label, source) of the clips the panel lists: rest, the procedural clips, the shipped BVH clips."""
     shipped = sorted(SHIPPED_MOTIONS.glob("*.bvh")) if SHIPPED_MOTIONS.is_dir() else []
     return [(name, name) for name in motion_names()] + [(path.stem, str(path)) for path in shipped]
+
+
+def clip_index(choices: list[tuple[str, str]], source: str) -> int:
+    """Index in ``choices`` (:func:`clip_choices`) of the open motion ``source``, -1 if not listed.
+
+    A file matches by its resolved path, so a relative path opens the listed clip.
+    """
+    for index, (_, listed) in enumerate(choices):
+        if listed == source or (Path(listed).is_file() and Path(listed).resolve() == Path(source).resolve()):
+            return index
+    return -1
 
 
 def compose_pose(motion: Motion, frame: int, sliders: np.ndarray, joint_map: dict[str, int]) -> BodyPose:

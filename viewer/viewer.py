@@ -319,8 +319,8 @@ class Viewer:
         """Sprites into the scene cache when something visible changed; cache and overlays to the window.
 
         While the view moves the sprites are drawn at the dynamic resolution's scale (stretched
-        to the viewport), and each such draw time steers the next scale; when still, at the
-        display's internal resolution (100% unless the approximation is chosen): the exact image.
+        to the viewport); when still, at the display's internal resolution (100% unless the
+        approximation is chosen): the exact image. Every draw's time steers the next moving scale.
         """
         display = self.display
         hud = self.hud
@@ -340,8 +340,7 @@ class Viewer:
                 hud.upload_ms = self._cache.set_gaussians_ms + timings.upload_ms
                 self._cache.set_gaussians_ms = 0.0
                 self._cache.scene_key = scene_key
-                if status.moving:
-                    self.resolution.update(scale, timings.draw_ms)
+                self.resolution.update(scale, timings.draw_ms)  # still frames too: the first move starts right
         screen = self.window.ctx.screen
         screen.use()
         self.window.ctx.viewport = (0, 0, *self.window.framebuffer_size())
