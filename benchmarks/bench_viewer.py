@@ -12,10 +12,15 @@ Sections (all by default):
   each with its error against the exact image.
 * accuracy: GL against the CPU splatter on avatar renders (3 poses x 8 views, 1280 x 720)
   with the float and the double projection: pixels over 2e-3, over 1e-4, max, mean.
-* window (only with a DISPLAY): the real Viewer.frame() in a glfw window: idle (cached
-  scene), orbit, scrub.
+* window (only with a DISPLAY): the real Viewer.frame() in a glfw window, synchronous
+  (the model waited for in each frame): idle (cached scene), orbit, scrub.
+* interactive (only with a DISPLAY): the viewer before (synchronous) and after (model
+  worker, frame cache, dynamic resolution) at a 1280 x 720 scene: playback, scrubbing
+  (first pass and cached), orbit, a slider drag (UI frame and latency); the keys
+  playback_p95_ms, scrub_first_pass_median_ms, orbit_moving_p95_ms, slider_ui_max_ms.
 
-    .venv/bin/python benchmarks/bench_viewer.py [--frames 40] [--sections scrub orbit accuracy window]
+    xvfb-run -a -s "-screen 0 1920x1080x24" .venv/bin/python benchmarks/bench_viewer.py \
+        [--frames 40] [--sections interactive scrub orbit accuracy window]
 
 Prints tables and writes benchmarks/results/bench_viewer.json (with the driver and the load
 average: the machine is shared, so medians and minima are both reported).
@@ -264,6 +269,7 @@ def bench_window(avatar_path: Path, frames: int) -> list[dict]:
 
     viewer = Viewer(avatar_path)
     viewer.setup()
+    viewer.synchronous = True  # every frame runs what its label says (the interactive section has the rest)
     rows = []
     try:
         viewer.open_motion("walk")
