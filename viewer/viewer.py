@@ -41,7 +41,7 @@ from viewer.settings import BACKFACE_MARGIN, PANEL_WIDTH, SCALE_RANGE, WINDOW_SI
 IDLE_WAIT = 0.05
 """Seconds the loop sleeps waiting for input when nothing animates (the machine is shared)."""
 PENDING_WAIT = 0.01
-"""Seconds the loop waits for input while only the model worker is busy."""
+"""Seconds the loop waits for input while the view settles or the model worker is busy."""
 SETTLE_TIMEOUT = 120.0
 """Seconds :meth:`Viewer.settle` waits for the model worker before giving up."""
 MAX_SETTLE_FRAMES = 8
@@ -155,21 +155,25 @@ class Viewer:
         self.setup()
         try:
             while not self.window.should_close():
-                if not self.animating:
-                    self.window.poll(PENDING_WAIT if self._waiting_for_work else IDLE_WAIT)
+                wait = self.input_wait()
+                if wait:
+                    self.window.poll(wait)
                 self.frame()
         finally:
             self.teardown()
 
-    @property
-    def animating(self) -> bool:
-        """Whether frames must come without input: playing, recording, or the view still settling."""
-        moving = self.status is not None and self.status.moving
-        return self.scene.pose_state.playing or self._requests.recording is not None or moving
+    def input_wait(self) -> float:
+        """Seconds the loop may sleep until input before the next frame (input wakes it at once).
 
-    @property
-    def _waiting_for_work(self) -> bool:
-        return self.status is not None and self.status.pending
+        None (0) while playing or recording; a short wait while the view settles or the model
+        worker is busy (the frame between two mouse events would only copy the same scene
+        and take the cores from the worker); a longer one when everything is still.
+        """
+        if self.scene.pose_state.playing or self._requests.recording is not None:
+            return 0.0
+        if self.status is not None and (self.status.moving or self.status.pending):
+            return PENDING_WAIT
+        return IDLE_WAIT
 
     def settle(self, timeout: float = SETTLE_TIMEOUT) -> None:
         """Draw frames until the exact frame of the current state is shown (tests and scripts; blocks).
