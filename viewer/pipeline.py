@@ -105,7 +105,7 @@ class ScenePipeline:
         )
         self.shown = NOTHING
         self.error: str | None = None
-        """The last evaluation's error (one line), shown by the UI."""
+        """The newest evaluation's error (one line), shown by the UI; None once one succeeds."""
         self._view: OrbitView | None = None
         self._state: tuple | None = None
         self._view_at = self._state_at = -math.inf
@@ -182,8 +182,8 @@ class ScenePipeline:
 
     def _choose(self, request: SceneRequest, state: tuple, cached) -> Shown:
         finished = self.worker.latest()
-        if finished is not None and finished.error is not None:
-            self.error = str(finished.error).splitlines()[0]
+        if finished is not None:  # the newest evaluation's error stays shown until one succeeds
+            self.error = str(finished.error).splitlines()[0] if finished.error is not None else None
         if finished is not None and finished.result is not None and finished.request.key == request.key:
             result = finished.result
             return Shown(("exact", request.key), result.arrays, state, True, result.model_ms, result.skinning_ms)
