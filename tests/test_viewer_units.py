@@ -238,3 +238,25 @@ def test_the_clip_list_offers_rest_the_procedural_and_the_shipped_clips(monkeypa
     assert clip_index(choices, str(relative)) == labels.index(shipped[0].stem), "a relative path finds its clip"
     assert clip_index(choices, "squat") == labels.index("squat")
     assert clip_index(choices, "elsewhere/other.bvh") == -1
+
+
+def test_an_interrupted_evaluation_keeps_its_finished_stages_and_resumes_to_the_same_gaussians(body):
+    """Interrupt after the first stage (E_u / D_static); evaluating again finishes from there:
+    E_u ran once in all, and the Gaussians equal an uninterrupted driver's."""
+    from pghm.data.procedural import procedural_motion
+    from pghm.model.evaluator import Interrupted
+    from pghm.render import AvatarDriver
+
+    avatar = development_avatar(SMALL, seed=3)
+    identity = avatar.identity_map()
+    pose = procedural_motion("walk", body).pose(10)
+    centre = np.array([0.4, 0.1, 2.5])
+    driver = AvatarDriver(avatar)
+    runs = driver.model.run_counts.copy()
+    with pytest.raises(Interrupted):
+        driver.evaluate(identity, pose, centre, interrupt=lambda: True)
+    resumed = driver.evaluate(identity, pose, centre)
+    assert (driver.model.run_counts - runs)["unet_encoder"] == 1, "the finished stage was kept"
+    fresh = AvatarDriver(development_avatar(SMALL, seed=3)).evaluate(identity, pose, centre)
+    for name in ("means", "scales", "colors", "opacities", "normals"):
+        assert np.array_equal(getattr(resumed, name), getattr(fresh, name)), name

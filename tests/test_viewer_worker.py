@@ -22,7 +22,7 @@ from viewer.camera import OrbitView
 from viewer.dynamic_resolution import SCALE_STEP, ResolutionController, ResolutionSettings
 from viewer.pipeline import ScenePipeline
 from viewer.scene import Evaluated, SceneRequest
-from viewer.worker import LatestRequestWorker
+from viewer.worker import LatestRequestWorker, Superseded
 
 WAIT = 30.0
 """Seconds a test waits for the worker thread before failing (a hang, not a timing check)."""
@@ -81,6 +81,34 @@ def test_newest_request_wins_and_older_waiting_ones_are_dropped():
         assert worker.pending == 0
     finally:
         model.go.release()
+        worker.close()
+
+
+def test_a_running_evaluation_stops_at_its_next_checkpoint_when_a_newer_request_waits():
+    reached = threading.Event()
+    resume = threading.Event()
+    computed: list[str] = []
+    worker: LatestRequestWorker | None = None
+
+    def compute(request):
+        if request == "old":
+            reached.set()  # the first stage is done
+            assert resume.wait(WAIT)
+            if worker.superseded():  # the checkpoint between two stages
+                raise Superseded
+        computed.append(request)
+        return request
+
+    worker = LatestRequestWorker(compute)
+    try:
+        worker.post("old")
+        assert reached.wait(WAIT)
+        worker.post("new")
+        resume.set()
+        assert worker.wait_idle(WAIT)
+        assert computed == ["new"] and worker.latest().request == "new" and worker.dropped == 1
+    finally:
+        resume.set()
         worker.close()
 
 
@@ -233,7 +261,7 @@ class FakeModel:
         self.gate = threading.Semaphore(0)
         self.ungated = threading.Event()
 
-    def __call__(self, request: SceneRequest) -> Evaluated:
+    def __call__(self, request: SceneRequest, interrupt) -> Evaluated:
         if not self.ungated.is_set():
             assert self.gate.acquire(timeout=WAIT), "the test never let the evaluation run"
         self.frames.append(request.frame)

@@ -29,13 +29,14 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from pghm.model.evaluator import Interrupted
 from pghm.render import GaussianArrays
 from pghm.render.frame_cache import FrameCache
 from viewer.camera import OrbitView
 from viewer.dynamic_resolution import ResolutionSettings
 from viewer.prefetch import ClipPlan, ClipPrefetcher
 from viewer.scene import Evaluated, SceneRequest, SceneSnapshot, evaluate_request
-from viewer.worker import LatestRequestWorker
+from viewer.worker import LatestRequestWorker, Superseded
 
 COLOUR_REFRESH_DEGREES = 20.0
 """While the view moves, view-dependent colour is re-evaluated (in the worker) each time the view
@@ -84,7 +85,8 @@ class ScenePipeline:
     Args:
         cache: the frame cache (its budget is the memory setting).
         settings: the settle delay (``settle_seconds``).
-        evaluate: the model call, :func:`~viewer.scene.evaluate_request` (tests pass a fake).
+        evaluate: the model call, :func:`~viewer.scene.evaluate_request` (tests pass a fake);
+            it gets the request and an ``interrupt()`` to call between stages.
         threads: torch threads while evaluating.
     """
 
@@ -92,13 +94,14 @@ class ScenePipeline:
         self,
         cache: FrameCache,
         settings: ResolutionSettings | None = None,
-        evaluate: Callable[[SceneRequest], Evaluated] = evaluate_request,
+        evaluate: Callable[[SceneRequest, Callable[[], bool]], Evaluated] = evaluate_request,
         threads: int | None = WORKER_THREADS,
     ) -> None:
         self.cache = cache
         self.settings = settings or ResolutionSettings()
         self._evaluate = evaluate
-        self.prefetcher = ClipPrefetcher(cache, evaluate)
+        # The worker is made after its background job: the interrupt looks it up when called.
+        self.prefetcher = ClipPrefetcher(cache, evaluate, lambda: self.worker.superseded())
         start = (lambda: torch.set_num_threads(threads)) if threads else None
         self.worker: LatestRequestWorker[SceneRequest, Evaluated] = LatestRequestWorker(
             self._compute, self.prefetcher, on_start=start
@@ -114,6 +117,7 @@ class ScenePipeline:
 
     def close(self) -> None:
         self.worker.close()
+
 
     # ------------------------------------------------------------------ per frame
 
@@ -200,8 +204,14 @@ class ScenePipeline:
     # ------------------------------------------------------------ worker thread
 
     def _compute(self, request: SceneRequest) -> Evaluated:
-        """The worker's job: evaluate, and keep a clip's frame in the cache for scrubbing back."""
-        evaluated = self._evaluate(request)
+        """The worker's job: evaluate, and keep a clip's frame in the cache for scrubbing back.
+
+        Stops between the model's stages when a newer request waits.
+        """
+        try:
+            evaluated = self._evaluate(request, self.worker.superseded)
+        except Interrupted:
+            raise Superseded from None
         if request.snapshot.motion.num_frames > 1:
             self.prefetcher.store(request.snapshot.key, request.frame, request.view, evaluated)
         return evaluated

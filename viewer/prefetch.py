@@ -14,9 +14,11 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from pghm.model.evaluator import Interrupted
 from pghm.render.frame_cache import FrameCache, PackedFrame, frames_ahead
 from viewer.camera import OrbitView
 from viewer.scene import Evaluated, SceneRequest, SceneSnapshot
+from viewer.worker import Superseded
 
 
 @dataclass(frozen=True, eq=False)
@@ -41,11 +43,18 @@ class ClipPrefetcher:
     Args:
         cache: where frames go.
         evaluate: the model call (:func:`viewer.scene.evaluate_request`), on the worker thread.
+        interrupt: passed to ``evaluate``; stops a step when a request waits.
     """
 
-    def __init__(self, cache: FrameCache, evaluate: Callable[[SceneRequest], Evaluated]) -> None:
+    def __init__(
+        self,
+        cache: FrameCache,
+        evaluate: Callable[[SceneRequest, Callable[[], bool]], Evaluated],
+        interrupt: Callable[[], bool],
+    ) -> None:
         self.cache = cache
         self._evaluate = evaluate
+        self._interrupt = interrupt
         self._frame_bytes = 0  # of the last frame stored: how many frames the budget holds
         self._plan: ClipPlan | None = None
         self._lock = threading.Lock()
@@ -80,7 +89,10 @@ class ClipPrefetcher:
         frame = self.next_frame(plan)
         if frame is None:
             return False
-        evaluated = self._evaluate(plan.snapshot.request(frame, plan.view))
+        try:
+            evaluated = self._evaluate(plan.snapshot.request(frame, plan.view), self._interrupt)
+        except Interrupted:
+            raise Superseded from None  # a request waits; this frame comes again in a later step
         self.store(plan.snapshot.key, frame, plan.view, evaluated)
         self.evaluated += 1
         return True

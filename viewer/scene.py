@@ -14,6 +14,7 @@ hands the renderer plain numpy arrays. What re-runs on each edit is the evaluato
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -197,13 +198,19 @@ class SceneSnapshot:
         return SceneRequest(self, frame, view, view.centre(offset))
 
 
-def evaluate_request(request: SceneRequest) -> Evaluated:
-    """Run the model for ``request`` (the model worker's job; only the changed branches re-run)."""
+def evaluate_request(request: SceneRequest, interrupt: Callable[[], bool] | None = None) -> Evaluated:
+    """Run the model for ``request`` (the model worker's job; only the changed branches re-run).
+
+    ``interrupt`` is checked between the model's stages; True raises
+    :class:`~pghm.model.evaluator.Interrupted` (a newer request waits).
+    """
     snapshot = request.snapshot
     driver = snapshot.driver
     identity_map = snapshot.identity.map_of(snapshot.identity_state)
     pose = snapshot.pose(request.frame)
-    arrays = driver.evaluate(identity_map, pose, request.centre, snapshot.gaussians, snapshot.view_dependent)
+    arrays = driver.evaluate(
+        identity_map, pose, request.centre, snapshot.gaussians, snapshot.view_dependent, interrupt=interrupt
+    )
     return Evaluated(arrays, driver.times.model_ms, driver.times.skinning_ms)
 
 

@@ -3,7 +3,8 @@
 The UI posts a request whenever what it wants to show changes (a pose slider, an identity
 edit, a timeline move, the settled view) and keeps drawing the last finished result. A
 request posted while another waits replaces it (the older one is dropped, never queued),
-so a slider drag costs at most one evaluation behind the newest value. When no request
+and the one running stops at its next checkpoint (:class:`Superseded`, raised by the model
+between its stages), so the newest value waits at most one stage. When no request
 waits, the worker runs background steps (:class:`BackgroundJob`, e.g. evaluating motion
 frames ahead of the playhead into :class:`pghm.render.frame_cache.FrameCache`), one short step at
 a time so that a new request waits at most one step.
@@ -22,6 +23,12 @@ from typing import Generic, Protocol, TypeVar
 
 Request = TypeVar("Request")
 Result = TypeVar("Result")
+
+
+class Superseded(Exception):
+    """``compute`` (or a background step) raises it to stop early once
+    :meth:`LatestRequestWorker.superseded` is True: the work is dropped like a request replaced
+    while waiting, and the newer one starts."""
 
 
 class BackgroundJob(Protocol):
@@ -97,6 +104,10 @@ class LatestRequestWorker(Generic[Request, Result]):
         with self._lock:
             return self._finished
 
+    def superseded(self) -> bool:
+        """Whether a request waits (for ``compute`` and background steps to stop early; any thread)."""
+        return self._waiting is not None
+
     @property
     def pending(self) -> int:
         """Requests posted and not finished: waiting or running (0, 1 or 2)."""
@@ -144,6 +155,8 @@ class LatestRequestWorker(Generic[Request, Result]):
             if job is None:
                 try:
                     more = self._background.step()
+                except Superseded:
+                    more = True
                 except Exception as error:  # kept for the UI; background work stops until woken
                     self.background_error, more = error, False
                 with self._lock:
@@ -154,9 +167,14 @@ class LatestRequestWorker(Generic[Request, Result]):
             serial, request = job
             try:
                 finished = Finished(serial, request, self._compute(request))
+            except Superseded:
+                finished = None
             except Exception as error:  # shown by the UI; the worker must outlive a bad request
                 finished = Finished(serial, request, None, error)
             with self._lock:
-                self._finished = finished
+                if finished is None:
+                    self.dropped += 1
+                else:
+                    self._finished = finished
                 self._running = None
                 self._lock.notify_all()
