@@ -12,10 +12,15 @@ Sections (all by default):
   each with its error against the exact image.
 * accuracy: GL against the CPU splatter on avatar renders (3 poses x 8 views, 1280 x 720)
   with the float and the double projection: pixels over 2e-3, over 1e-4, max, mean.
-* window (only with a DISPLAY): the real Viewer.frame() in a glfw window: idle (cached
-  scene), orbit, scrub.
+* window (only with a DISPLAY): the real Viewer.frame() in a glfw window, synchronous
+  (the model waited for in each frame): idle (cached scene), orbit, scrub.
+* interactive (only with a DISPLAY): the viewer before (synchronous) and after (model
+  worker, frame cache, dynamic resolution) at a 1280 x 720 scene: playback, scrubbing
+  (first pass and cached), orbit, a slider drag (UI frame and latency); the keys
+  playback_p95_ms, scrub_first_pass_median_ms, orbit_moving_p95_ms, slider_ui_max_ms.
 
-    .venv/bin/python benchmarks/bench_viewer.py [--frames 40] [--sections scrub orbit accuracy window]
+    xvfb-run -a -s "-screen 0 1920x1080x24" .venv/bin/python benchmarks/bench_viewer.py \
+        [--frames 40] [--sections interactive scrub orbit accuracy window]
 
 Prints tables and writes benchmarks/results/bench_viewer.json (with the driver and the load
 average: the machine is shared, so medians and minima are both reported).
@@ -264,6 +269,7 @@ def bench_window(avatar_path: Path, frames: int) -> list[dict]:
 
     viewer = Viewer(avatar_path)
     viewer.setup()
+    viewer.synchronous = True  # every frame runs what its label says (the interactive section has the rest)
     rows = []
     try:
         viewer.open_motion("walk")
@@ -290,10 +296,125 @@ def bench_window(avatar_path: Path, frames: int) -> list[dict]:
     return rows
 
 
+# ---------------------------------------------------------------------- interactive
+
+INTERACTIVE_WINDOW = (1640, 720)
+"""The window whose scene viewport (right of the 360-pixel panel) is 1280 x 720."""
+WALK_CLIP = "assets/motion/mixamo_walk_69f.bvh"
+SLIDER_DRAG = np.linspace(0.0, 90.0, 24)
+"""Degrees of the left elbow on consecutive frames of a drag."""
+LATENCY_FRAMES = 400
+"""At most this many frames wait for the dragged pose to appear."""
+PASS_KEYS = ("idle", "playback", "scrub_first_pass", "scrub_cached", "orbit_moving", "slider_ui")
+"""idle: nothing changes (UI and the cached scene image only), the floor of every other frame."""
+
+
+def frame_times(viewer, frames: int, action) -> list[float]:
+    """ms of ``viewer.frame()`` after ``action(k)``, k = 0 .. frames - 1."""
+    times = []
+    for k in range(frames):
+        action(k)
+        start = time.perf_counter()
+        viewer.frame()
+        times.append((time.perf_counter() - start) * 1e3)
+    return times
+
+
+def interactive_pass(viewer, frames: int, synchronous: bool) -> dict:
+    """Play, scrub, orbit and drag a slider in the real viewer; frame times and the slider latency.
+
+    ``synchronous``: every frame waits for the model and draws exactly (the viewer before the
+    worker, the cache and dynamic resolution); else the viewer as shipped.
+    """
+    viewer.synchronous = synchronous
+    viewer.pipeline.cache.clear()
+    viewer.reset_camera()
+    viewer.reset_pose()
+    viewer.open_motion(str(ROOT / WALK_CLIP))
+    num_frames = viewer.scene.pose_state.motion.num_frames
+    out = {}
+    out["scrub_first_pass"] = frame_times(viewer, min(frames, num_frames), lambda k: viewer.scrub_to(k))
+    viewer.settle()
+    viewer.pipeline.worker.wait_background_idle()  # the clip is cached after one pass
+    out["idle"] = frame_times(viewer, frames, lambda k: None)
+    out["cache_frames"] = len(viewer.pipeline.cache)
+    out["cache_mb"] = viewer.pipeline.cache.nbytes / 2**20
+    out["scrub_cached"] = frame_times(viewer, frames, lambda k: viewer.scrub_to((7 * k) % num_frames))
+    viewer.settle()
+    viewer.set_playing(True)
+    out["playback"] = frame_times(viewer, frames, lambda k: None)
+    viewer.set_playing(False)
+    viewer.settle()
+    out["orbit_moving"] = frame_times(viewer, frames, lambda k: viewer.orbit(6.0, 0.0))
+    viewer.settle()
+    viewer.open_motion("rest")
+    viewer.settle()
+    drag = SLIDER_DRAG[: max(frames // 2, 2)]
+    out["slider_ui"] = frame_times(viewer, len(drag), lambda k: viewer.set_pose_slider("left_elbow", "z", drag[k]))
+    # Latency: from the last drag event until a frame shows that pose (the frame's end),
+    # with the waits of Viewer.run's loop between frames (no more input arrives).
+    dragged = time.perf_counter()
+    viewer.set_pose_slider("left_elbow", "z", float(drag[-1]) + 5.0)
+    for _ in range(LATENCY_FRAMES):
+        viewer.frame()
+        if viewer.status.shown.state == (viewer._snapshot().key, 0):
+            break
+        if not synchronous:
+            viewer.window.poll(viewer.input_wait())
+    out["slider_latency_ms"] = (time.perf_counter() - dragged) * 1e3
+    viewer.reset_pose()
+    viewer.settle()
+    return out
+
+
+def bench_interactive(avatar_path: Path, frames: int) -> dict:
+    """The viewer before (synchronous) and after (worker, cache, dynamic resolution), alternating passes."""
+    from viewer.viewer import Viewer
+
+    viewer = Viewer(avatar_path, window_size=INTERACTIVE_WINDOW)
+    viewer.setup()
+    passes = {"before": [], "after": []}
+    loads = [load_average()]
+    try:
+        viewer.settle()
+        for synchronous in (True, False, True, False):  # A B A B: load from other jobs falls on both
+            passes["before" if synchronous else "after"].append(interactive_pass(viewer, frames, synchronous))
+            loads.append(load_average())
+    finally:
+        viewer.teardown()
+    result = {"viewport": [1280, 720], "frames_per_measurement": frames, "loads": loads}
+    for name, runs in passes.items():
+        row = {}
+        for key in PASS_KEYS:
+            times = [t for run in runs for t in run[key]]
+            row[f"{key}_median_ms"] = float(np.median(times))
+            row[f"{key}_p95_ms"] = float(np.percentile(times, 95))
+            row[f"{key}_max_ms"] = float(np.max(times))
+        row["slider_latency_ms"] = float(max(run["slider_latency_ms"] for run in runs))
+        row["cache_frames"] = runs[-1]["cache_frames"]
+        row["cache_mb"] = runs[-1]["cache_mb"]
+        result[name] = row
+    return result
+
+
+def print_interactive(result: dict) -> None:
+    before, after = result["before"], result["after"]
+    rows = []
+    for key in PASS_KEYS:
+        for stat in ("median", "p95", "max"):
+            name = f"{key}_{stat}_ms"
+            ratio = after[name] / before[name]
+            rows.append({"measure": name, "before": before[name], "after": after[name], "ratio": ratio})
+    name = "slider_latency_ms"
+    rows.append({"measure": name, "before": before[name], "after": after[name], "ratio": after[name] / before[name]})
+    print_table(rows)
+    print(f"cache after one pass: {after['cache_frames']} frames, {after['cache_mb']:.1f} MB; loads {result['loads']}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=40, help="frames per measurement")
-    parser.add_argument("--sections", nargs="+", default=["scrub", "orbit", "accuracy", "window"])
+    parser.add_argument("--sections", nargs="+", default=["interactive", "scrub", "orbit", "accuracy", "window"])
     args = parser.parse_args()
     setup_threads()
     torch.manual_seed(0)
@@ -333,6 +454,19 @@ def main() -> None:
                 print_table(results["window"])
         else:
             print("\nwindow: skipped (no DISPLAY; run under Xvfb for the in-window numbers)")
+    if "interactive" in args.sections:
+        if os.environ.get("DISPLAY") and DEFAULT_AVATAR.is_file():
+            print("\nThe viewer, scene 1280 x 720: before (model on the UI thread, exact frames) and after, ms")
+            interactive = bench_interactive(DEFAULT_AVATAR, args.frames)
+            print_interactive(interactive)
+            results["interactive"] = interactive
+            after = interactive["after"]
+            results["playback_p95_ms"] = after["playback_p95_ms"]
+            results["scrub_first_pass_median_ms"] = after["scrub_first_pass_median_ms"]
+            results["orbit_moving_p95_ms"] = after["orbit_moving_p95_ms"]
+            results["slider_ui_max_ms"] = after["slider_ui_max_ms"]
+        else:
+            print("\ninteractive: skipped (needs DISPLAY, e.g. xvfb-run, and assets/avatar.pt)")
     results["load_after"] = load_average()
     write_json("bench_viewer", results)
 

@@ -72,8 +72,10 @@ def posed(driver):
     return out
 
 
-def compare(gl: SpriteRenderer, arrays, camera: Camera, background=(1.0, 1.0, 1.0)) -> dict[str, float]:
-    gl.set_gaussians(arrays.means, arrays.scales, arrays.colors, arrays.opacities)
+def compare(gl: SpriteRenderer, arrays, camera: Camera, background=(1.0, 1.0, 1.0), drawn=None) -> dict[str, float]:
+    """Errors of GL drawing ``drawn`` (default: ``arrays``) against the float64 splatter on ``arrays``."""
+    drawn = arrays if drawn is None else drawn
+    gl.set_gaussians(drawn.means, drawn.scales, drawn.colors, drawn.opacities)
     image = gl.render(camera, background)
     truth = render(
         *(torch.from_numpy(a).double() for a in (arrays.means, arrays.scales, arrays.colors, arrays.opacities)),
@@ -147,3 +149,18 @@ def test_double_projection_by_default_and_the_float_fallback_meets_the_bar(gl, p
         assert_close(compare(fallback, arrays, camera), "float projection")
     finally:
         fallback.release()
+
+
+@pytest.mark.parametrize("pose", list(POSES))
+def test_cached_frames_in_half_precision_stay_within_the_bar(gl, posed, pose):
+    """The viewer's frame cache keeps scales, colours and opacities in float16
+    (pghm.render.frame_cache.PackedFrame): drawn from the cache, the image stays within the bar of
+    the exact splatter image of the full-precision Gaussians, at the 1280 x 720 the viewer uses."""
+    from pghm.render.frame_cache import PackedFrame
+
+    arrays = posed[pose]
+    cached = PackedFrame.pack(arrays).unpack()
+    framing = frame_points(arrays.means, 40.0, 1280 / 720)
+    for yaw in (0.0, 135.0):
+        camera = orbit_camera(framing.target, yaw, 10.0, framing.distance, 40.0, 1280, 720)
+        assert_close(compare(gl, arrays, camera, drawn=cached), f"{pose}/{yaw} cached")

@@ -182,3 +182,28 @@ def test_auto_backend_falls_back_to_the_cpu_without_egl(avatar_file, tmp_path, m
     assert summary.backend == "cpu" and len(notes) == 1 and "CPU splatter" in notes[0]
     with pytest.raises(DisplayError):
         render_video(RenderJob(avatar=avatar_file, out=tmp_path / "t.png", size=(96, 64), backend="gl"))
+
+
+def test_a_looping_motion_evaluates_each_pose_once_and_repeats_it_exactly(avatar_file, tmp_path):
+    """Two loops of the walk at 6 fps: the second loop's frames come from the frame cache, so
+    the model runs once per distinct motion frame and repeated frames are pixel-identical."""
+    from pghm.body import load_body
+    from pghm.data.open_motion import open_motion
+
+    motion = open_motion("walk", load_body("anny"))
+    fps = 6.0
+    per_loop = int(motion.duration * fps)
+    job = RenderJob(
+        avatar=avatar_file, out=tmp_path / "loops", motion="walk", fps=fps, frames=2 * per_loop, size=(96, 64)
+    )
+    distinct = {spec.motion_frame for spec in plan_frames(job, motion)}
+    assert len(distinct) < 2 * per_loop, "the plan repeats motion frames"
+    summary = render_video(job, log=lambda _: None)
+    assert summary.frames == 2 * per_loop and summary.evaluated == len(distinct)
+    frames = frames_of(tmp_path / "loops")
+    specs = plan_frames(job, motion)
+    first = {}
+    for spec, image in zip(specs, frames):
+        if spec.motion_frame in first:
+            assert np.array_equal(first[spec.motion_frame], image)
+        first.setdefault(spec.motion_frame, image)

@@ -105,13 +105,14 @@ def viewer(display, avatar_file):
     torch.set_num_threads(2)
     app = Viewer(avatar_file, window_size=WINDOW)
     app.setup()
-    app.frame()
+    app.settle()
     yield app
     app.teardown()
 
 
 def scene_shot(viewer, path: Path) -> np.ndarray:
-    """The scene viewport's pixels (no UI) after one frame, as written to ``path``."""
+    """The scene viewport's settled pixels (no UI; the model worker has delivered), as written to ``path``."""
+    viewer.settle()
     viewer.screenshot(path, include_ui=False)
     viewer.frame()
     on_disk = iio.imread(path)
@@ -223,6 +224,35 @@ def test_scrubbing_a_motion_moves_the_arms_not_the_legs(viewer, tmp_path):
     assert not (diff & legs).any(), "the legs did not move"
     viewer.open_motion("rest")
     viewer.set_gaussian_set("dynamic")
+
+
+def test_after_a_scrub_settles_the_window_shows_the_exact_frame_the_timeline_names(viewer, tmp_path):
+    """Scrub the walk without waiting (the worker lags, frames are approximate), then settle:
+    the scene equals the CPU splatter's image of that frame's Gaussians, evaluated by an
+    independent driver for the viewer's camera (8-bit, within one level: the 2e-3 GL/CPU bar)."""
+    from pghm.io.avatar import load_avatar
+    from pghm.render import AvatarDriver, to_uint8
+    from pghm.splat import render
+
+    viewer.open_motion("walk")
+    for frame in range(5, 40, 3):
+        viewer.scrub_to(frame)
+        viewer.frame()
+    viewer.orbit(40.0, -10.0)
+    viewer.frame()
+    shown = scene_shot(viewer, tmp_path / "settled.png")
+    assert viewer.scene.pose_state.frame == 38
+    driver = AvatarDriver(load_avatar(viewer.avatar_path))
+    camera = viewer.current_camera()
+    pose = viewer.scene.pose_state.motion.pose(38)
+    arrays = driver.evaluate(driver.avatar.identity_map(), pose, camera.centre.numpy())
+    tensors = (torch.from_numpy(a) for a in (arrays.means, arrays.scales, arrays.colors, arrays.opacities))
+    truth = to_uint8(render(*tensors, camera, background=viewer.display.background).rgb.numpy())
+    assert shown.shape == truth.shape
+    assert np.abs(shown.astype(np.int16) - truth).max() <= 1
+    assert viewer.hud.internal_size == (camera.width, camera.height), "the settled frame is at full resolution"
+    viewer.reset_camera()
+    viewer.open_motion("rest")
 
 
 def test_region_gain_on_the_latent_changes_the_head(viewer, tmp_path):

@@ -220,3 +220,43 @@ def test_driver_reuses_arrays_only_for_the_same_output_and_set():
     assert driver.evaluate(identity, driver.rest_pose(), centre, "dynamic") is dynamic
     static = driver.evaluate(identity, driver.rest_pose(), centre, "static")
     assert static is not dynamic and not np.array_equal(static.colors, dynamic.colors)
+
+
+def test_the_clip_list_offers_rest_the_procedural_and_the_shipped_clips(monkeypatch):
+    from pghm.data.procedural import PROCEDURAL_MOTIONS
+    from viewer.scene import clip_choices, clip_index
+    from viewer.settings import SHIPPED_MOTIONS
+
+    choices = clip_choices()
+    labels = [label for label, _ in choices]
+    shipped = sorted(SHIPPED_MOTIONS.glob("*.bvh"))
+    assert shipped, "the repository ships motion clips"
+    assert labels == ["rest", *PROCEDURAL_MOTIONS, *(path.stem for path in shipped)]
+    root = SHIPPED_MOTIONS.parent.parent
+    monkeypatch.chdir(root)
+    relative = shipped[0].relative_to(root)
+    assert clip_index(choices, str(relative)) == labels.index(shipped[0].stem), "a relative path finds its clip"
+    assert clip_index(choices, "squat") == labels.index("squat")
+    assert clip_index(choices, "elsewhere/other.bvh") == -1
+
+
+def test_an_interrupted_evaluation_keeps_its_finished_stages_and_resumes_to_the_same_gaussians(body):
+    """Interrupt after the first stage (E_u / D_static); evaluating again finishes from there:
+    E_u ran once in all, and the Gaussians equal an uninterrupted driver's."""
+    from pghm.data.procedural import procedural_motion
+    from pghm.model.evaluator import Interrupted
+    from pghm.render import AvatarDriver
+
+    avatar = development_avatar(SMALL, seed=3)
+    identity = avatar.identity_map()
+    pose = procedural_motion("walk", body).pose(10)
+    centre = np.array([0.4, 0.1, 2.5])
+    driver = AvatarDriver(avatar)
+    runs = driver.model.run_counts.copy()
+    with pytest.raises(Interrupted):
+        driver.evaluate(identity, pose, centre, interrupt=lambda: True)
+    resumed = driver.evaluate(identity, pose, centre)
+    assert (driver.model.run_counts - runs)["unet_encoder"] == 1, "the finished stage was kept"
+    fresh = AvatarDriver(development_avatar(SMALL, seed=3)).evaluate(identity, pose, centre)
+    for name in ("means", "scales", "colors", "opacities", "normals"):
+        assert np.array_equal(getattr(resumed, name), getattr(fresh, name)), name

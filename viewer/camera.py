@@ -38,6 +38,39 @@ SNAP_VIEWS: dict[str, tuple[float, float]] = {
 """(yaw, pitch) in degrees of the snap buttons; yaw 0 faces the body's front (+z)."""
 
 
+@dataclass(frozen=True)
+class OrbitView:
+    """The orbit state as a value (hashable): what the view-dependent colour of a frame was made for.
+
+    The camera of a frame is this view with its target shifted by ``offset`` (the root's
+    horizontal motion when following the body).
+    """
+
+    target: tuple[float, float, float]
+    yaw: float
+    pitch: float
+    distance: float
+    fov_y: float
+
+    def camera(self, offset: np.ndarray, width: int, height: int) -> Camera:
+        """The pinhole camera for a W x H image, target moved by ``offset`` (3,)."""
+        target = np.asarray(self.target, dtype=np.float64) + offset
+        return orbit_camera(target, self.yaw, self.pitch, self.distance, self.fov_y, width, height)
+
+    def centre(self, offset: np.ndarray) -> np.ndarray:
+        """(3,) float32 camera centre, target moved by ``offset``."""
+        return self.camera(offset, 2, 2).centre.numpy().astype(np.float32)
+
+    def degrees_to(self, other: OrbitView) -> float:
+        """Angle between the two viewing directions (from the target to the camera), degrees."""
+        a, b = self._direction(), other._direction()
+        return math.degrees(math.acos(float(np.clip(a @ b, -1.0, 1.0))))
+
+    def _direction(self) -> np.ndarray:
+        yaw, pitch = math.radians(self.yaw), math.radians(self.pitch)
+        return np.array([math.cos(pitch) * math.sin(yaw), math.sin(pitch), math.cos(pitch) * math.cos(yaw)])
+
+
 @dataclass
 class OrbitController:
     """Camera state and the gestures that change it.
@@ -102,7 +135,12 @@ class OrbitController:
 
     def camera(self, width: int, height: int) -> Camera:
         """The pinhole camera of the current state for a W x H image."""
-        return orbit_camera(self.target + self.offset, self.yaw, self.pitch, self.distance, self.fov_y, width, height)
+        return self.view().camera(self.offset, width, height)
+
+    def view(self) -> OrbitView:
+        """The current state (without ``offset``) as a value."""
+        target = tuple(float(v) for v in self.target)
+        return OrbitView(target, float(self.yaw), float(self.pitch), float(self.distance), float(self.fov_y))
 
     def _rotation(self) -> np.ndarray:
         """(3, 3) world-to-camera rotation: rows are the camera's right, down and forward axes."""

@@ -61,6 +61,17 @@ def bank_pca(bank: Tensor, max_components: int = MAX_COMPONENTS) -> BankPCA:
     return BankPCA(mean, directions[:keep], stds[:keep])
 
 
+@dataclass(frozen=True)
+class IdentityState:
+    """The identity edits as a value: bank entries a and b, blend weight, PCA coefficients, region gains."""
+
+    index_a: int
+    index_b: int
+    blend: float
+    coefficients: tuple[float, ...]
+    gains: tuple[float, ...]
+
+
 class IdentityEditor:
     """The identity state of the viewer and the identity map it gives.
 
@@ -91,7 +102,7 @@ class IdentityEditor:
         self.blend = 0.0
         self.coefficients = np.zeros(self.num_components)
         self.gains = np.ones(len(self.regions.names))
-        self._key: tuple | None = None
+        self._key: IdentityState | None = None
         self._map: Tensor | None = None
 
     def pick(self, index: int) -> None:
@@ -127,23 +138,34 @@ class IdentityEditor:
             raise PghmError(f"region gain must be in [{GAIN_RANGE[0]}, {GAIN_RANGE[1]}], got {gain}")
         self.gains[index] = float(gain)
 
+    def state(self) -> IdentityState:
+        """The current edits as an immutable value (what a model request carries)."""
+        return IdentityState(
+            self.index_a, self.index_b, self.blend, tuple(self.coefficients.tolist()), tuple(self.gains.tolist())
+        )
+
     def identity_map(self) -> Tensor:
         """F (1, C, L, L) of the current state; recomputed only when the state changed."""
-        key = (self.index_a, self.index_b, self.blend, self.coefficients.tobytes(), self.gains.tobytes())
-        if key != self._key:
+        return self.map_of(self.state())
+
+    def map_of(self, state: IdentityState) -> Tensor:
+        """F (1, C, L, L) of ``state``; the last one is kept (the viewer's model worker is the only caller)."""
+        if state != self._key:
             with torch.no_grad():
-                self._map = self._base_map() * self.regions.gain_map(torch.from_numpy(self.gains))
-            self._key = key
+                gains = torch.tensor(state.gains, dtype=torch.float64)
+                self._map = self._base_map(state) * self.regions.gain_map(gains)
+            self._key = state
         return self._map
 
-    def _base_map(self) -> Tensor:
+    def _base_map(self, state: IdentityState) -> Tensor:
         if not self.is_prior:
             return self.avatar.latent
         bank = self.avatar.model.identity_bank.detach()
-        latent = (1.0 - self.blend) * bank[self.index_a] + self.blend * bank[self.index_b]
-        if self.num_components and self.coefficients.any():
+        latent = (1.0 - state.blend) * bank[state.index_a] + state.blend * bank[state.index_b]
+        coefficients = np.array(state.coefficients)
+        if self.num_components and coefficients.any():
             # sum_k a_k sigma_k v_k, reshaped to the latent's (C, L', L')
-            edit = (self.coefficients * self.pca.stds) @ self.pca.components
+            edit = (coefficients * self.pca.stds) @ self.pca.components
             latent = latent + torch.from_numpy(edit).to(latent.dtype).view_as(latent)
         return self.avatar.model.decode_latent(latent[None])
 

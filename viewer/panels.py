@@ -15,10 +15,9 @@ from typing import TYPE_CHECKING
 
 from imgui_bundle import imgui
 
-from pghm.data.open_motion import motion_names
 from viewer.camera import FOV_RANGE, SNAP_VIEWS
 from viewer.identity import COMPONENT_RANGE, GAIN_RANGE
-from viewer.scene import ANGLE_LIMIT, AXES, POSE_JOINTS, SPEED_RANGE
+from viewer.scene import ANGLE_LIMIT, AXES, POSE_JOINTS, SPEED_RANGE, clip_choices, clip_index
 from viewer.settings import PANEL_WIDTH, RENDER_SCALES, SCALE_RANGE, SHIPPED_MOTIONS
 
 if TYPE_CHECKING:
@@ -30,6 +29,7 @@ MAX_LISTED_FILES = 200
 """The motion picker lists at most this many files of a folder."""
 ERROR_COLOUR = (1.0, 0.35, 0.3, 1.0)
 NOTE_COLOUR = (0.5, 0.9, 0.5, 1.0)
+PENDING_COLOUR = (1.0, 0.8, 0.3, 1.0)
 HUD_MARGIN = 8.0
 """Pixels between the HUD and the window's top-right corner."""
 WHEEL_STEP = 1.0
@@ -163,11 +163,10 @@ def _motion_section(viewer: Viewer, state: PanelState) -> None:
         return
     scene = viewer.scene
     pose_state = scene.pose_state
-    names = motion_names()
-    current = names.index(scene.motion_name) if scene.motion_name in names else -1
-    changed, picked = imgui.combo("clip", current, names)
+    choices = clip_choices()
+    changed, picked = imgui.combo("clip", clip_index(choices, scene.motion_name), [label for label, _ in choices])
     if changed:
-        viewer.try_action(viewer.open_motion, names[picked])
+        viewer.try_action(viewer.open_motion, choices[picked][1])
     _, state.motion_path = imgui.input_text("##motion", state.motion_path)
     imgui.same_line()
     if imgui.button("Open motion"):
@@ -321,10 +320,12 @@ def _output_section(viewer: Viewer, state: PanelState) -> None:
 def _hud(viewer: Viewer) -> None:
     """FPS, Gaussian count and the stage times, over the scene's top-right corner (no input).
 
-    Each stage shows its last run: model and skinning of the last frame whose Gaussians
-    changed (skinning 0 when only the camera moved); sort, upload and draw of the last
-    frame that redrew the sprites (a frame whose scene did not change copies the cached
-    image). fps and frame are this frame's.
+    Each stage shows its last run: model and skinning of the evaluation whose Gaussians are
+    drawn (0 for a frame from the cache; on the model worker, not in the frame time); sort,
+    upload and draw of the last frame that redrew the sprites (a frame whose scene did not
+    change copies the cached image). fps and frame are this frame's; the internal
+    resolution is reduced while the view moves; the cache line is the motion frame cache's
+    fill; "update pending" means the model worker has not yet delivered what is asked.
     """
     hud = viewer.hud
     io = imgui.get_io()
@@ -340,8 +341,17 @@ def _hud(viewer: Viewer) -> None:
     )
     imgui.begin("HUD", None, flags)
     imgui.text(f"{hud.fps:5.1f} fps   frame {hud.frame_ms:6.1f} ms")
+    width, height = hud.internal_size
+    quality = "moving" if hud.moving else "exact" if not hud.pending else "settling"
+    imgui.text(f"internal {width} x {height} ({quality})")
     drawn = f" ({hud.drawn} drawn)" if hud.drawn != hud.gaussians else ""
     imgui.text(f"{hud.gaussians} Gaussians{drawn}")
+    imgui.text(f"cache {hud.cache_frames} frames, {hud.cache_mb:.1f} / {hud.cache_budget_mb:.0f} MB")
+    work = ("update pending" if hud.pending else "up to date") + (", prefetching" if hud.prefetching else "")
+    if hud.pending:
+        imgui.text_colored(imgui.ImVec4(*PENDING_COLOUR), work)
+    else:
+        imgui.text(work)
     imgui.text(f"model     {hud.model_ms:6.1f} ms")
     imgui.text(f"skinning  {hud.skinning_ms:6.1f} ms")
     imgui.text(f"sort      {hud.sort_ms:6.1f} ms")

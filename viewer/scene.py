@@ -13,7 +13,10 @@ hands the renderer plain numpy arrays. What re-runs on each edit is the evaluato
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import roma
@@ -25,7 +28,9 @@ from pghm.data.open_motion import REST, motion_names, open_motion
 from pghm.errors import PghmError
 from pghm.render import DEFAULT_FOV_Y, AvatarDriver, Framing, GaussianArrays, GaussianSet, frame_points
 from pghm.uv.regions import RegionMap, region_map
-from viewer.identity import IdentityEditor
+from viewer.camera import OrbitView
+from viewer.identity import IdentityEditor, IdentityState
+from viewer.settings import SHIPPED_MOTIONS
 
 SLIDERLESS_JOINTS = ("left_collar", "right_collar", "left_foot", "right_foot")
 """Canonical joints left without sliders: small motions, and fewer rows in the panel."""
@@ -37,6 +42,38 @@ ANGLE_LIMIT = 180.0
 """Pose sliders span +-this many degrees."""
 SPEED_RANGE = (0.1, 4.0)
 """Playback speed multipliers."""
+_SERIALS = itertools.count(1)
+"""Numbers for drivers and opened motions: part of the keys of evaluated frames (never reused, unlike id())."""
+
+
+def clip_choices() -> list[tuple[str, str]]:
+    """(label, source) of the clips the panel lists: rest, the procedural clips, the shipped BVH clips."""
+    shipped = sorted(SHIPPED_MOTIONS.glob("*.bvh")) if SHIPPED_MOTIONS.is_dir() else []
+    return [(name, name) for name in motion_names()] + [(path.stem, str(path)) for path in shipped]
+
+
+def clip_index(choices: list[tuple[str, str]], source: str) -> int:
+    """Index in ``choices`` (:func:`clip_choices`) of the open motion ``source``, -1 if not listed.
+
+    A file matches by its resolved path, so a relative path opens the listed clip.
+    """
+    for index, (_, listed) in enumerate(choices):
+        if listed == source or (Path(listed).is_file() and Path(listed).resolve() == Path(source).resolve()):
+            return index
+    return -1
+
+
+def compose_pose(motion: Motion, frame: int, sliders: np.ndarray, joint_map: dict[str, int]) -> BodyPose:
+    """Motion frame ``frame`` with the sliders (len(POSE_JOINTS), 3) degrees applied: R = R_motion R_slider."""
+    pose = motion.pose(frame)
+    if not sliders.any():
+        return pose
+    rotations = pose.rotations.clone()
+    moved = np.flatnonzero(sliders.any(axis=1))  # untouched bones keep the motion's values exactly
+    bones = [joint_map[POSE_JOINTS[row]] for row in moved]
+    offsets = torch.from_numpy(np.radians(sliders[moved])).to(rotations.dtype)
+    rotations[0, bones] = roma.rotvec_composition([rotations[0, bones], offsets])
+    return BodyPose(rotations, pose.translation)
 
 
 @dataclass
@@ -77,15 +114,104 @@ class PoseState:
 
     def pose(self, joint_map: dict[str, int]) -> BodyPose:
         """The 1-pose :class:`BodyPose` of the current frame and sliders."""
-        pose = self.motion.pose(self.frame)
-        if not self.sliders.any():
-            return pose
-        rotations = pose.rotations.clone()
-        moved = np.flatnonzero(self.sliders.any(axis=1))  # untouched bones keep the motion's values exactly
-        bones = [joint_map[POSE_JOINTS[row]] for row in moved]
-        offsets = torch.from_numpy(np.radians(self.sliders[moved])).to(rotations.dtype)
-        rotations[0, bones] = roma.rotvec_composition([rotations[0, bones], offsets])
-        return BodyPose(rotations, pose.translation)
+        return compose_pose(self.motion, self.frame, self.sliders, joint_map)
+
+
+@dataclass(frozen=True, eq=False)
+class SceneRequest:
+    """One evaluation for the model worker: everything it reads, fixed when the UI posted it.
+
+    Attributes:
+        snapshot: the scene state (driver, identity, sliders, motion, display set).
+        frame: the motion frame.
+        view: the orbit view the view-dependent colour is evaluated for.
+        centre: (3,) float32 camera centre (the view, target shifted when following the body).
+    """
+
+    snapshot: SceneSnapshot
+    frame: int
+    view: OrbitView
+    centre: np.ndarray
+
+    @property
+    def key(self) -> tuple:
+        """(scene state, frame, camera centre): equal keys give equal Gaussians."""
+        return self.snapshot.key, self.frame, self.centre.tobytes()
+
+
+@dataclass(frozen=True)
+class Evaluated:
+    """A worker's answer: the Gaussians and what the model and skinning took (ms)."""
+
+    arrays: GaussianArrays
+    model_ms: float
+    skinning_ms: float
+
+
+@dataclass(frozen=True, eq=False)
+class SceneSnapshot:
+    """The scene's state as a value: what a frame's Gaussians depend on, besides the frame and the camera.
+
+    Made on the UI thread (:meth:`AvatarScene.snapshot`), read by the model worker; ``key``
+    names the state (serial numbers of the driver and the motion, identity, sliders, set).
+    """
+
+    driver: AvatarDriver
+    driver_serial: int
+    identity: IdentityEditor
+    identity_state: IdentityState
+    motion: Motion
+    motion_serial: int
+    sliders: np.ndarray
+    rest_root: np.ndarray
+    gaussians: GaussianSet
+    view_dependent: bool
+    follow: bool
+
+    @property
+    def key(self) -> tuple:
+        return (
+            self.driver_serial,
+            self.identity_state,
+            self.sliders.tobytes(),
+            self.motion_serial,
+            self.gaussians,
+            self.view_dependent,
+            self.follow,
+        )
+
+    def pose(self, frame: int) -> BodyPose:
+        return compose_pose(self.motion, frame, self.sliders, self.driver.body.joint_map)
+
+    def root_shift(self, pose: BodyPose) -> np.ndarray:
+        """(3,) horizontal motion of the root from rest (cameras that follow the body add it)."""
+        shift = self.driver.root_position(pose) - self.rest_root
+        return np.array([shift[0], 0.0, shift[2]])
+
+    def camera_offset(self, frame: int) -> np.ndarray:
+        """(3,) what the camera's target moves by at ``frame``: the root shift when following, else 0."""
+        return self.root_shift(self.pose(frame)) if self.follow else np.zeros(3)
+
+    def request(self, frame: int, view: OrbitView, offset: np.ndarray | None = None) -> SceneRequest:
+        """The evaluation of ``frame`` seen from ``view`` (``offset``: :meth:`camera_offset`, if known)."""
+        offset = self.camera_offset(frame) if offset is None else offset
+        return SceneRequest(self, frame, view, view.centre(offset))
+
+
+def evaluate_request(request: SceneRequest, interrupt: Callable[[], bool] | None = None) -> Evaluated:
+    """Run the model for ``request`` (the model worker's job; only the changed branches re-run).
+
+    ``interrupt`` is checked between the model's stages; True raises
+    :class:`~pghm.model.evaluator.Interrupted` (a newer request waits).
+    """
+    snapshot = request.snapshot
+    driver = snapshot.driver
+    identity_map = snapshot.identity.map_of(snapshot.identity_state)
+    pose = snapshot.pose(request.frame)
+    arrays = driver.evaluate(
+        identity_map, pose, request.centre, snapshot.gaussians, snapshot.view_dependent, interrupt=interrupt
+    )
+    return Evaluated(arrays, driver.times.model_ms, driver.times.skinning_ms)
 
 
 class AvatarScene:
@@ -100,11 +226,13 @@ class AvatarScene:
         self.avatar = avatar
         self.body_model_path = body_model_path
         self.driver = AvatarDriver(avatar, 0, body_model_path)
+        self.driver_serial = next(_SERIALS)
         self.body = self.driver.body
         self.regions: RegionMap = region_map(self.driver.geometry, self.body)
         self.identity = IdentityEditor(avatar, self.regions)
         self.pose_state = PoseState(motion=open_motion(REST, self.body))
         self.motion_name = REST
+        self.motion_serial = next(_SERIALS)
         self._rest_root = self.driver.root_position(self.driver.rest_pose())
 
     # ------------------------------------------------------------------ identity
@@ -115,6 +243,7 @@ class AvatarScene:
         shape = self.avatar.shape_of(index)
         if not torch.equal(shape, self.driver.geometry.shape):
             self.driver = AvatarDriver(self.avatar, index, self.body_model_path)
+            self.driver_serial = next(_SERIALS)
             self.regions = region_map(self.driver.geometry, self.body)
             self.identity.regions = self.regions
             self._rest_root = self.driver.root_position(self.driver.rest_pose())
@@ -149,6 +278,7 @@ class AvatarScene:
         motion = open_motion(source.strip(), self.body, self.driver.geometry.shape)
         self.pose_state.motion, self.pose_state.time = motion, 0.0
         self.motion_name = source.strip()
+        self.motion_serial = next(_SERIALS)
 
     def scrub_to(self, frame: int) -> None:
         """Show motion frame ``frame`` (clamped to the clip)."""
@@ -160,10 +290,6 @@ class AvatarScene:
             raise PghmError(f"speed must be in [{SPEED_RANGE[0]}, {SPEED_RANGE[1]}], got {speed}")
         self.pose_state.speed = float(speed)
 
-    @staticmethod
-    def motion_choices() -> list[str]:
-        """Names accepted besides file paths: rest and the procedural clips."""
-        return motion_names()
 
     # ------------------------------------------------------------------- outputs
 
@@ -171,15 +297,20 @@ class AvatarScene:
         """The default camera framing of the rest body for images of ``aspect`` = W / H."""
         return frame_points(self.driver.geometry.surface.positions.numpy(), DEFAULT_FOV_Y, aspect)
 
-    def root_shift(self) -> np.ndarray:
-        """(3,) horizontal motion of the root from rest (cameras that follow the body add it)."""
-        shift = self.driver.root_position(self.current_pose()) - self._rest_root
-        return np.array([shift[0], 0.0, shift[2]])
-
-    def evaluate(self, camera_centre: np.ndarray, gaussians: GaussianSet, view_dependent: bool) -> GaussianArrays:
-        """The Gaussians of the current identity and pose seen from ``camera_centre`` (3,)."""
-        return self.driver.evaluate(
-            self.identity.identity_map(), self.current_pose(), camera_centre, gaussians, view_dependent
+    def snapshot(self, gaussians: GaussianSet, view_dependent: bool, follow: bool) -> SceneSnapshot:
+        """The current state as a value, for the model worker (copies the sliders and identity edits)."""
+        return SceneSnapshot(
+            driver=self.driver,
+            driver_serial=self.driver_serial,
+            identity=self.identity,
+            identity_state=self.identity.state(),
+            motion=self.pose_state.motion,
+            motion_serial=self.motion_serial,
+            sliders=self.pose_state.sliders.copy(),
+            rest_root=self._rest_root,
+            gaussians=gaussians,
+            view_dependent=view_dependent,
+            follow=follow,
         )
 
     def posed_mesh(self) -> np.ndarray:

@@ -68,3 +68,14 @@ class HudStats:
     drawn: int = 0
     """Gaussians sent to the renderer (fewer than ``gaussians`` with back-face culling)."""
     scene_redrawn: bool = False
+    internal_size: tuple[int, int] = (0, 0)
+    """Pixels the sprites were drawn at (below the viewport while the view moves)."""
+    moving: bool = False
+    """The view or the pose is moving: the frame is approximate (dynamic resolution)."""
+    pending: bool = False
+    """The model worker has not yet delivered what the state names: the last Gaussians are shown."""
+    prefetching: bool = False
+    """The model worker is evaluating clip frames into the cache."""
+    cache_frames: int = 0
+    cache_mb: float = 0.0
+    cache_budget_mb: float = 0.0

@@ -29,14 +29,23 @@ import numpy as np
 from pghm.errors import PghmError
 from pghm.io.avatar import load_avatar
 from pghm.render import GaussianArrays, GaussianSet
+from pghm.render.frame_cache import DEFAULT_BUDGET_MB, MEGABYTE, FrameCache
 from viewer.camera import OrbitController
+from viewer.dynamic_resolution import ResolutionController, ResolutionSettings
 from viewer.panels import PanelState, draw_panels, handle_mouse
+from viewer.pipeline import FrameStatus, ScenePipeline, Shown
 from viewer.recording import Recording, RecordSource, save_png, start_recording
 from viewer.scene import AvatarScene
 from viewer.settings import BACKFACE_MARGIN, PANEL_WIDTH, SCALE_RANGE, WINDOW_SIZE, DisplaySettings, HudStats
 
 IDLE_WAIT = 0.05
 """Seconds the loop sleeps waiting for input when nothing animates (the machine is shared)."""
+PENDING_WAIT = 0.01
+"""Seconds the loop waits for input while the view settles or the model worker is busy."""
+SETTLE_TIMEOUT = 120.0
+"""Seconds :meth:`Viewer.settle` waits for the model worker before giving up."""
+MAX_SETTLE_FRAMES = 8
+"""Frames :meth:`Viewer.settle` draws at most (post, wait, draw; a state may need two rounds)."""
 FPS_SMOOTHING = 0.9
 """Exponential smoothing of the HUD's frames per second."""
 
@@ -53,7 +62,6 @@ class _Requests:
 class _Cache:
     """Keys of what the GL side last received, to skip unchanged uploads and draws."""
 
-    arrays: GaussianArrays | None = None
     upload_key: tuple | None = None
     scene_key: tuple | None = None
     mesh_key: tuple | None = None
@@ -69,10 +77,17 @@ class Viewer:
         avatar_path: the ``.pt`` file to open (errors raise :class:`~pghm.errors.AvatarFileError`).
         window_size: (W, H) screen pixels.
         body_model_path: the model file of bodies that are not embedded (SMPL-X).
+        cache_mb: memory budget of the motion frame cache, megabytes.
+        resolution: the dynamic resolution's budget and the settle delay.
     """
 
     def __init__(
-        self, avatar_path: str | Path, window_size: tuple[int, int] = WINDOW_SIZE, body_model_path: str | None = None
+        self,
+        avatar_path: str | Path,
+        window_size: tuple[int, int] = WINDOW_SIZE,
+        body_model_path: str | None = None,
+        cache_mb: float = DEFAULT_BUDGET_MB,
+        resolution: ResolutionSettings | None = None,
     ) -> None:
         self.avatar_path = Path(avatar_path)
         self.window_size = window_size
@@ -90,6 +105,16 @@ class Viewer:
         self.driver = ""
         """The GL renderer and version strings (known after set-up), shown in the panel."""
         self.window = None
+        self.cache_mb = cache_mb
+        self.resolution = ResolutionController(resolution)
+        self.pipeline: ScenePipeline | None = None
+        """The model worker, frame cache and prefetcher (between :meth:`setup` and :meth:`teardown`)."""
+        self.status: FrameStatus | None = None
+        """The last frame's choice of Gaussians (moving, pending)."""
+        self._settled = False
+        self.synchronous = False
+        """Wait for the model in every frame and draw it exactly (the viewer before the worker;
+        benchmarks compare against it); a fixed-rate motion recording does so too."""
         self._requests = _Requests()
         self._cache = _Cache()
         self._last_frame = time.perf_counter()
@@ -108,10 +133,15 @@ class Viewer:
         self.overlay = OverlayRenderer(self.window.ctx)
         self.scene_cache = SceneCache(self.window.ctx)
         self._cache = _Cache()
+        cache = FrameCache(int(self.cache_mb * MEGABYTE))
+        self.pipeline = ScenePipeline(cache, self.resolution.settings)
 
     def teardown(self) -> None:
-        """Finish a recording, free every GL object and close the window."""
+        """Finish a recording, stop the model worker, free every GL object and close the window."""
         self.stop_recording()
+        if self.pipeline is not None:
+            self.pipeline.close()
+            self.pipeline = None
         if self.window is None:
             return
         self.scene_cache.release()
@@ -125,16 +155,43 @@ class Viewer:
         self.setup()
         try:
             while not self.window.should_close():
-                if not self.animating:
-                    self.window.poll(IDLE_WAIT)
+                wait = self.input_wait()
+                if wait:
+                    self.window.poll(wait)
                 self.frame()
         finally:
             self.teardown()
 
-    @property
-    def animating(self) -> bool:
-        """Whether frames must come without input: playing, or recording."""
-        return self.scene.pose_state.playing or self._requests.recording is not None
+    def input_wait(self) -> float:
+        """Seconds the loop may sleep until input before the next frame (input wakes it at once).
+
+        None (0) while playing or recording; a short wait while the view settles or the model
+        worker is busy (the frame between two mouse events would only copy the same scene
+        and take the cores from the worker); a longer one when everything is still.
+        """
+        if self.scene.pose_state.playing or self._requests.recording is not None:
+            return 0.0
+        if self.status is not None and (self.status.moving or self.status.pending):
+            return PENDING_WAIT
+        return IDLE_WAIT
+
+    def settle(self, timeout: float = SETTLE_TIMEOUT) -> None:
+        """Draw frames until the exact frame of the current state is shown (tests and scripts; blocks).
+
+        The view counts as still at once (no settle delay), and the loop waits for the model
+        worker between frames instead of sleeping.
+        """
+        self._settled = True
+        try:
+            for _ in range(MAX_SETTLE_FRAMES):
+                self.frame()
+                if not self.status.pending and not self.status.moving:
+                    return
+                if not self.pipeline.worker.wait_idle(timeout):
+                    break
+        finally:
+            self._settled = False
+        raise PghmError(f"the model worker did not deliver the frame within {timeout:g} s")
 
     # ------------------------------------------------------------- the frame
 
@@ -155,9 +212,27 @@ class Viewer:
             self.scene.pose_state.advance(elapsed)
 
         viewport = self.scene_viewport()
-        camera = self._scene_camera(viewport)
-        arrays = self._update_gaussians(camera)
-        self._draw_scene(camera, viewport, arrays)
+        snapshot = self._snapshot()
+        state = self.scene.pose_state
+        offset = snapshot.camera_offset(state.frame)
+        self.camera.offset = offset
+        camera = self.camera.camera(viewport[2], viewport[3])
+        block = self.synchronous or (recording is not None and recording.source == "motion")
+        self.status = self.pipeline.update(
+            snapshot,
+            state.frame,
+            self.camera.view(),
+            offset,
+            now,
+            playing=state.playing,
+            loop=state.loop,
+            settled=self._settled,
+            block=block,
+        )
+        if self.status.shown.arrays is not None:
+            self._update_gaussians(camera, self.status.shown)
+        self._draw_scene(camera, viewport, self.status)
+        self._hud_work()
         if recording is not None and recording.source == "motion":
             self._write_frame(recording, window.read_pixels(viewport))
         screenshot = self._requests.screenshot
@@ -197,22 +272,37 @@ class Viewer:
         """The scene's :class:`~pghm.splat.Camera` for the current viewport, pose (when following) and orbit."""
         return self._scene_camera(self.scene_viewport())
 
+    def _hud_work(self) -> None:
+        """The HUD's cache fill and pending work."""
+        hud, pipeline = self.hud, self.pipeline
+        hud.cache_frames = len(pipeline.cache)
+        hud.cache_mb = pipeline.cache.nbytes / MEGABYTE
+        hud.cache_budget_mb = pipeline.cache.budget_bytes / MEGABYTE
+        hud.pending = self.status.pending
+        hud.prefetching = pipeline.worker.background_busy
+        hud.moving = self.status.moving
+        if pipeline.error:
+            self.error = pipeline.error
+
     def _scene_camera(self, viewport: tuple[int, int, int, int]):
-        self.camera.offset = self.scene.root_shift() if self.display.follow else np.zeros(3)
+        self.camera.offset = self._snapshot().camera_offset(self.scene.pose_state.frame)
         return self.camera.camera(viewport[2], viewport[3])
 
-    def _update_gaussians(self, camera) -> GaussianArrays:
-        """Run the model if anything it depends on changed, and upload what the renderer needs."""
+    def _snapshot(self):
         display = self.display
-        arrays = self.scene.evaluate(camera.centre.numpy(), display.gaussians, display.view_dependent)
-        times = self.scene.driver.times
+        return self.scene.snapshot(display.gaussians, display.view_dependent, display.follow)
+
+    def _update_gaussians(self, camera, shown: Shown) -> None:
+        """Upload the chosen Gaussians when they, the point size or (culling) the camera changed."""
+        display = self.display
+        arrays = shown.arrays
         hud = self.hud
         hud.gaussians = arrays.count
-        if arrays is not self._cache.arrays:  # the model produced new Gaussians: show what that cost
-            hud.model_ms, hud.skinning_ms = times.model_ms, times.skinning_ms
         cull_key = camera.centre.numpy().tobytes() if display.cull_backfacing else None
-        key = (id(arrays), display.scale_multiplier, cull_key)
-        if key != self._cache.upload_key or arrays is not self._cache.arrays:
+        key = (shown.source, display.scale_multiplier, cull_key)
+        if key != self._cache.upload_key:
+            if shown.source != (self._cache.upload_key or (None,))[0]:  # new Gaussians: show what they cost
+                hud.model_ms, hud.skinning_ms = shown.model_ms, shown.skinning_ms
             start = time.perf_counter()
             keep = self._facing(arrays, camera.centre.numpy()) if display.cull_backfacing else slice(None)
             scales = arrays.scales[keep] * display.scale_multiplier
@@ -220,8 +310,7 @@ class Viewer:
             self.overlay.set_points(arrays.means)
             self._cache.set_gaussians_ms = (time.perf_counter() - start) * 1e3
             hud.drawn = self.renderer.count
-            self._cache.upload_key, self._cache.arrays = key, arrays
-        return arrays
+            self._cache.upload_key = key
 
     @staticmethod
     def _facing(arrays: GaussianArrays, centre: np.ndarray) -> np.ndarray:
@@ -230,30 +319,38 @@ class Viewer:
         cosine = (arrays.normals * view).sum(axis=1) / np.maximum(np.linalg.norm(view, axis=1), 1e-9)
         return cosine >= -BACKFACE_MARGIN
 
-    def _draw_scene(self, camera, viewport: tuple[int, int, int, int], arrays: GaussianArrays) -> None:
-        """Sprites into the scene cache when something visible changed; cache and overlays to the window."""
+    def _draw_scene(self, camera, viewport: tuple[int, int, int, int], status: FrameStatus) -> None:
+        """Sprites into the scene cache when something visible changed; cache and overlays to the window.
+
+        While the view moves the sprites are drawn at the dynamic resolution's scale (stretched
+        to the viewport); when still, at the display's internal resolution (100% unless the
+        approximation is chosen): the exact image. Every draw's time steers the next moving scale.
+        """
         display = self.display
         hud = self.hud
-        w2c = camera.world_to_camera.double().numpy().tobytes()
-        scene_key = (self._cache.upload_key, w2c, viewport[2:], display.background, display.render_scale)
-        hud.scene_redrawn = scene_key != self._cache.scene_key
-        if hud.scene_redrawn:
-            target = self.scene_cache.target((viewport[2], viewport[3]))
-            internal = camera
-            if display.render_scale != 1.0:
-                width = max(1, round(viewport[2] * display.render_scale))
-                height = max(1, round(viewport[3] * display.render_scale))
-                internal = self.camera.camera(width, height)
-            timings = self.renderer.draw(internal, display.background, target=target, viewport=(0, 0, *viewport[2:]))
-            hud.sort_ms, hud.draw_ms = timings.sort_ms, timings.draw_ms
-            hud.upload_ms = self._cache.set_gaussians_ms + timings.upload_ms
-            self._cache.set_gaussians_ms = 0.0
-            self._cache.scene_key = scene_key
+        scale = min(display.render_scale, self.resolution.scale) if status.moving else display.render_scale
+        width, height = max(1, round(viewport[2] * scale)), max(1, round(viewport[3] * scale))
+        hud.internal_size = (width, height)
+        if status.shown.arrays is not None:
+            w2c = camera.world_to_camera.double().numpy().tobytes()
+            scene_key = (self._cache.upload_key, w2c, viewport[2:], display.background, (width, height))
+            hud.scene_redrawn = scene_key != self._cache.scene_key
+            if hud.scene_redrawn:
+                target = self.scene_cache.target((viewport[2], viewport[3]))
+                internal = self.camera.camera(width, height) if (width, height) != viewport[2:] else camera
+                full = (0, 0, *viewport[2:])
+                timings = self.renderer.draw(internal, display.background, target=target, viewport=full)
+                hud.sort_ms, hud.draw_ms = timings.sort_ms, timings.draw_ms
+                hud.upload_ms = self._cache.set_gaussians_ms + timings.upload_ms
+                self._cache.set_gaussians_ms = 0.0
+                self._cache.scene_key = scene_key
+                self.resolution.update(scale, timings.draw_ms)  # still frames too: the first move starts right
         screen = self.window.ctx.screen
         screen.use()
         self.window.ctx.viewport = (0, 0, *self.window.framebuffer_size())
         screen.clear(*display.background, 1.0)
-        self.scene_cache.show(screen, viewport)
+        if self.scene_cache.framebuffer is not None:
+            self.scene_cache.show(screen, viewport)
         if display.show_mesh:
             self._update_mesh()
         self.overlay.draw(camera, viewport, centres=display.show_centres, mesh=display.show_mesh)
@@ -276,6 +373,8 @@ class Viewer:
         self.camera.home = scene.framing(self._scene_aspect(self._window_pixels()))
         self.camera.reset()
         self._cache = _Cache()
+        if self.pipeline is not None:
+            self.pipeline.cache.clear()  # the old avatar's frames are never asked for again
 
     def try_action(self, action, *args) -> bool:
         """Call ``action(*args)`` for the UI: a PghmError becomes :attr:`error` (one line) instead of an exception."""

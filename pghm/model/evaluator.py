@@ -15,12 +15,22 @@ runs, with ``view_dependent=False`` D_view doesn't.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 from torch import Tensor
 
 from pghm.body.pose import BodyPose
 from pghm.model.geometry import SubjectGeometry
 from pghm.model.pghm import PGHM, AvatarOutput, IdentityFeatures, PoseBranch, Skinned
+
+
+class Interrupted(Exception):
+    """Raised between two stages when the caller's ``interrupt()`` says the result is no longer wanted.
+
+    The stages computed so far stay cached (each is keyed by its own inputs), so nothing is
+    lost for an evaluation that continues from the same identity or pose.
+    """
 
 
 def _same(a: Tensor | None, b: Tensor | None) -> bool:
@@ -61,23 +71,33 @@ class CachedEvaluator:
         camera_centre: Tensor,
         dynamic: bool = True,
         view_dependent: bool = True,
+        interrupt: Callable[[], bool] | None = None,
     ) -> AvatarOutput:
         """Both Gaussian sets for one identity map (1, C, L, L), one pose and a (3,) camera centre.
 
         Args:
             dynamic: whether the dynamic set's pose-dependent offsets are needed (D_pose).
             view_dependent: whether its view-dependent colour is needed (D_view).
+            interrupt: checked after each stage that ran; True raises :class:`Interrupted`
+                (the viewer's model worker, when a newer request waits).
         """
+
+        def checkpoint() -> None:
+            if interrupt is not None and interrupt():
+                raise Interrupted
+
         model = self.model
         centre = camera_centre.reshape(1, 3).to(identity_map.dtype)
         if not _same(identity_map, self._identity):
             self._identity = identity_map.clone()
             self._features = model.identity_features(identity_map)
             self._pose_branch = self._view = self._output = None
+            checkpoint()
         if not (_same(pose.rotations, self._rotations) and _same(pose.translation, self._translation)):
             self._rotations, self._translation = pose.rotations.clone(), pose.translation.clone()
             self._skinned = model.skin(self.geometry, pose)
             self._pose_branch = self._view = self._output = None
+            checkpoint()
         need_pose = dynamic or not model.multi_head
         need_view = (dynamic and view_dependent) or not model.multi_head
         if not _same(centre, self._centre):
@@ -88,6 +108,7 @@ class CachedEvaluator:
         if need_pose and self._pose_branch is None:
             self._pose_branch = model.pose_branch(self._features, self._skinned)
             self._output = None
+            checkpoint()
         if need_view and self._view is None:
             self._view = model.view_branch(self._features, self._skinned, self._pose_branch, self.geometry, centre)
             self._output = None

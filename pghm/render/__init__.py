@@ -17,16 +17,21 @@ One module per piece, each usable alone (the viewer uses the first three):
   sequence when no encoder exists).
 * :mod:`pghm.render.frames`: :class:`GLFrames`, :class:`CPUFrames`: Gaussian arrays +
   camera -> float RGB image; :func:`frame_renderer` picks one for a backend.
+* :mod:`pghm.render.frame_cache`: :class:`FrameCache`, evaluated frames (:class:`PackedFrame`)
+  kept under a byte budget, least recently used evicted; ``pghm render`` evaluates a repeated
+  (motion frame, camera centre) once, the viewer keeps a clip's frames for playback.
 * :mod:`pghm.render.job`: :func:`render_video` with a :class:`RenderJob`: the whole
   ``pghm render`` command.
 
-Dependencies run one way: ``job`` uses the other four, ``frames`` uses ``driver``'s
-:class:`GaussianArrays`, and ``driver``, ``framing`` and ``sinks`` use none of the others.
+Dependencies run one way: ``job`` uses the other five, ``frames`` and ``frame_cache`` use
+``driver``'s :class:`GaussianArrays`, and ``driver``, ``framing`` and ``sinks`` use none of
+the others.
 The names below are re-exported here; patch a name in the module that looks it up (e.g.
 ``pghm.render.frames.GLFrames`` for :func:`frame_renderer`).
 """
 
 from pghm.render.driver import AvatarDriver, GaussianArrays, GaussianSet, StageTimes
+from pghm.render.frame_cache import FrameCache, PackedFrame
 from pghm.render.frames import Backend, CPUFrames, GLFrames, frame_renderer
 from pghm.render.framing import BODY_FILL, DEFAULT_FOV_Y, POLE_TOLERANCE, Framing, frame_points, orbit_camera
 from pghm.render.job import (
@@ -66,6 +71,7 @@ __all__ = [
     "AvatarDriver",
     "Backend",
     "CPUFrames",
+    "FrameCache",
     "FrameSink",
     "FrameSpec",
     "Framing",
@@ -74,6 +80,7 @@ __all__ = [
     "GaussianSet",
     "Mp4Sink",
     "PngFileSink",
+    "PackedFrame",
     "PngSequenceSink",
     "RenderJob",
     "RenderSummary",

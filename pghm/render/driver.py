@@ -9,6 +9,7 @@ changed re-run, and times the model and skinning stages (:class:`StageTimes`).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -127,12 +128,14 @@ class AvatarDriver:
         camera_centre: Tensor | np.ndarray,
         gaussians: GaussianSet = "dynamic",
         view_dependent: bool = True,
+        interrupt: Callable[[], bool] | None = None,
     ) -> GaussianArrays:
         """The Gaussians of ``identity_map`` (1, C, L, L) in ``pose`` (1 pose) seen from ``camera_centre`` (3,).
 
         ``gaussians`` picks the paper's static set V_sta (image I_s) or dynamic set V_dyn
         (I_d); ``view_dependent=False`` drops the view-dependent colour V_c^o (D_view is
-        then not run).
+        then not run). ``interrupt``: see :meth:`CachedEvaluator.evaluate
+        <pghm.model.evaluator.CachedEvaluator.evaluate>` (raises ``Interrupted``).
         """
         if gaussians not in ("dynamic", "static"):
             raise PghmError(f"gaussians must be 'dynamic' or 'static', got {gaussians!r}")
@@ -141,7 +144,7 @@ class AvatarDriver:
         centre = torch.as_tensor(np.asarray(camera_centre, dtype=np.float32))
         dynamic = gaussians == "dynamic"
         output = self.evaluator.evaluate(
-            identity_map, pose, centre, dynamic=dynamic, view_dependent=dynamic and view_dependent
+            identity_map, pose, centre, dynamic=dynamic, view_dependent=dynamic and view_dependent, interrupt=interrupt
         )
         # The same output object means nothing re-ran; the single-head model returns it for
         # either set, so the set is part of the key.

@@ -1,0 +1,65 @@
+"""Dynamic resolution: while the view moves, the internal resolution that holds the frame budget.
+
+The sprite pass is fragment-bound (docs/gl.md): its time grows with the pixel count, about
+t(s) = t(1) s^2 at internal scale s (fraction of the viewport per side). After a frame drawn
+at scale s in t ms, the scale that would take the budget B is
+
+    s* = s sqrt(B / t)
+
+and the controller moves there smoothly in log space (a single slow frame, e.g. another
+process taking the cores, should not halve the resolution) and rounds to steps of
+``SCALE_STEP`` (each new size reallocates the accumulation target). Once the view stops,
+the viewer draws at scale 1, the exact image.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from pghm.errors import PghmError
+
+SCALE_STEP = 0.05
+"""The internal scale is a multiple of this."""
+
+
+@dataclass
+class ResolutionSettings:
+    """Budget and bounds of the dynamic resolution (a setting of the viewer)."""
+
+    draw_budget_ms: float = 10.0
+    """Scene draw time to hold while moving (the rest of a 16 ms frame is UI and copies)."""
+    min_scale: float = 0.25
+    """Never below this fraction of the viewport per side."""
+    smoothing: float = 0.5
+    """Weight of the previous scale in log space (0: jump to the estimate)."""
+    settle_seconds: float = 0.15
+    """After the view and the pose stop for this long, the exact full-resolution frame is drawn."""
+
+    def __post_init__(self) -> None:
+        if self.draw_budget_ms <= 0:
+            raise PghmError(f"draw budget must be positive, got {self.draw_budget_ms} ms")
+        if not 0 < self.min_scale <= 1:
+            raise PghmError(f"minimum scale must be in (0, 1], got {self.min_scale}")
+
+
+class ResolutionController:
+    """The internal scale for moving frames, updated from each moving frame's measured draw time."""
+
+    def __init__(self, settings: ResolutionSettings | None = None) -> None:
+        self.settings = settings or ResolutionSettings()
+        self._scale = 1.0
+
+    @property
+    def scale(self) -> float:
+        """The scale to draw the next moving frame at (a multiple of SCALE_STEP in [min_scale, 1])."""
+        return self._scale
+
+    def update(self, scale: float, draw_ms: float) -> float:
+        """Record that a frame at ``scale`` took ``draw_ms``; returns the next scale."""
+        settings = self.settings
+        target = scale * math.sqrt(settings.draw_budget_ms / max(draw_ms, 1e-3))
+        blended = math.exp(settings.smoothing * math.log(self._scale) + (1 - settings.smoothing) * math.log(target))
+        stepped = round(blended / SCALE_STEP) * SCALE_STEP
+        self._scale = min(1.0, max(settings.min_scale, stepped))
+        return self._scale
