@@ -136,7 +136,7 @@ def main() -> None:
     parser.add_argument("--identities", type=int, default=12)
     parser.add_argument("--seed", type=int, default=7)
     args = parser.parse_args()
-    setup_threads()
+    setup_threads(1)  # small tensors: a second thread costs more in synchronisation than it gains
     config = SynthConfig(identities=args.identities, views=6, frames=8, test_frames=1, width=512, height=512, texture_size=256)
     if not (args.work / "meta.json").exists():
         generate(config.validate(), args.seed, args.work, workers=1, progress=False)
@@ -170,6 +170,7 @@ def main() -> None:
                 "fitted_%height": float(100 * ((fitted[:, 0] - target).norm(dim=-1) / height).median()),
             }
         )
+        print(rows[-1], flush=True)
         order = weights.argsort(descending=True)
         constants[landmark] = (candidates[order].tolist(), [round(float(w), 4) for w in weights[order]])
     print_table(rows)

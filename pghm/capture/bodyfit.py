@@ -47,7 +47,7 @@ from scipy.ndimage import distance_transform_edt
 from torch import Tensor
 
 from pghm.body import BodyModel, load_body
-from pghm.body.skinning import forward_kinematics, kinematic_levels
+from pghm.body.skinning import forward_kinematics, kinematic_levels, lbs
 from pghm.capture.landmarks import BODY_LANDMARKS, LANDMARK_NAMES, NUM_LANDMARKS, landmark_regressor
 from pghm.errors import PghmError
 
@@ -147,6 +147,10 @@ class BodyFitConfig:
 
     coverage_samples: int = 64
     """Mask pixels per frame that the body should cover."""
+
+    silhouette_frames: int = 16
+    """Frames (drawn at random each step) on which the mask terms are evaluated: the shape
+    they mostly inform is shared, and their cost stays independent of the video's length."""
 
     mask_size: int = 128
     """Longest side (pixels) at which the masks are compared."""
@@ -366,6 +370,18 @@ def fit_body(observations: Observations, config: BodyFitConfig | None = None) ->
         the fit, F frames in the observations' order.
     """
     config = (config or BodyFitConfig()).validate()
+    threads = torch.get_num_threads()
+    # The tensors are small (F x ~800 points): with two threads each of the thousands of
+    # small ops waits on the other, and on a loaded 2-core machine the fit of 300 frames
+    # took 527 s instead of 20 s with one.
+    torch.set_num_threads(1)
+    try:
+        return _fit(observations, config)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
     frames = _check(observations)
     rng = np.random.default_rng(config.seed)
     body = load_body(config.body)
@@ -396,18 +412,21 @@ def fit_body(observations: Observations, config: BodyFitConfig | None = None) ->
     log_focal = torch.tensor(np.log(focal0), dtype=torch.float32, requires_grad=True)
     fit_focal = observations.K is None and config.fit_focal
 
-    def landmarks_and_vertices(rotvecs: Tensor, translation: Tensor, shape: Tensor) -> tuple[Tensor, Tensor]:
+    num_marks = regressor_index.numel()
+
+    def posed(rotvecs: Tensor, translation: Tensor, shape: Tensor, subset: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """(F, L, 3) world landmarks, and (F_subset, N, 3) silhouette vertices of the frames ``subset``."""
         rest_vertices, rest_joints = shape_model(shape)
         transforms = forward_kinematics(roma.rotvec_to_rotmat(rotvecs), rest_joints, translation, skeleton.parents, levels)
-        identity = torch.eye(3, 4)
-        deltas = (weights @ (transforms[..., :3, :] - identity).reshape(frames, -1, 12)).reshape(frames, -1, 3, 4)
-        posed = rest_vertices + (deltas[..., :3] @ rest_vertices[..., None])[..., 0] + deltas[..., 3]
-        marks = posed[:, : regressor_index.numel()].reshape(frames, num_land, -1, 3)
-        return (regressor_weights[None, ..., None] * marks).sum(-2), posed[:, regressor_index.numel() :]
+        marks = lbs(rest_vertices[:num_marks], weights[:num_marks], transforms).reshape(frames, num_land, -1, 3)
+        marks = (regressor_weights[None, ..., None] * marks).sum(-2)
+        if subset is None:
+            return marks, marks[:0]
+        return marks, lbs(rest_vertices[num_marks:], weights[num_marks:], transforms[subset])
 
     # Initialisation: root rotation from MediaPipe's torso (Procrustes against the rest
     # body's torso landmarks), root position from the 2D-3D correspondence at the default focal.
-    rest_marks, _ = landmarks_and_vertices(torch.zeros(frames, len(skeleton.bones), 3), torch.zeros(frames, 3), shape0)
+    rest_marks, _ = posed(torch.zeros(frames, len(skeleton.bones), 3), torch.zeros(frames, 3), shape0)
     rest_rel = rest_marks - rest_marks[:, hips].mean(1, keepdim=True)
     torso_w = data.weights[:, torso] + 1e-3
     rotation0 = _procrustes_rotation(rest_rel[:, torso], data.world3d[:, torso], torso_w)
@@ -431,7 +450,8 @@ def fit_body(observations: Observations, config: BodyFitConfig | None = None) ->
     def objective(stage: int) -> tuple[Tensor, dict[str, Tensor]]:
         shape = torch.sigmoid(shape_logit)
         rotvecs = torch.cat([root[:, None], pose if stage > 0 else torch.zeros_like(pose)], 1)
-        marks, verts = landmarks_and_vertices(rotvecs, translation, shape)
+        subset = torch.as_tensor(rng.choice(frames, min(frames, config.silhouette_frames), replace=False)) if stage > 1 else None
+        marks, verts = posed(rotvecs, translation, shape, subset)
         focal = log_focal.exp()
         pixels = _project(marks, focal, centre, camera)
         sigma = config.robust_sigma
@@ -458,11 +478,16 @@ def fit_body(observations: Observations, config: BodyFitConfig | None = None) ->
             h, w = data.outside.shape[-2:]
             step = max(height, width) / max(h, w)
             grid = torch.stack([vpix[..., 0] / (step * w), vpix[..., 1] / (step * h)], -1) * 2 - 1
-            outside = torch.nn.functional.grid_sample(data.outside, grid[:, None], align_corners=False, padding_mode="border")
-            terms["outside"] = config.weight_outside * (outside[:, 0, 0] / data.height_px).mean(1).sum() / frames
-            nearest = torch.cdist(data.inside, vpix).min(-1).values / data.height_px
-            cover = _geman_mcclure(nearest**2, sigma) * data.inside_valid
-            terms["coverage"] = config.weight_coverage * cover.mean(1).sum() / frames
+            outside = torch.nn.functional.grid_sample(
+                data.outside[subset], grid[:, None], align_corners=False, padding_mode="border"
+            )
+            terms["outside"] = config.weight_outside * (outside[:, 0, 0] / data.height_px).mean()
+            inside = data.inside[subset]
+            with torch.no_grad():  # only the nearest vertex of each mask pixel carries gradient
+                nearest = torch.cdist(inside, vpix).argmin(-1)
+            gap = (inside - torch.gather(vpix, 1, nearest[..., None].expand(-1, -1, 2))).square().sum(-1)
+            cover = _geman_mcclure(gap / data.height_px**2, sigma) * data.inside_valid[subset]
+            terms["coverage"] = config.weight_coverage * cover.mean()
         return sum(terms.values()), terms
 
     stages = [
@@ -487,7 +512,7 @@ def fit_body(observations: Observations, config: BodyFitConfig | None = None) ->
         rotations = torch.zeros(frames, body.num_bones, 3)
         rotations[:, skeleton.bones] = torch.cat([root[:, None], pose], 1)
         focal = float(log_focal.exp())
-        marks, _ = landmarks_and_vertices(torch.cat([root[:, None], pose], 1), translation, shape)
+        marks, _ = posed(torch.cat([root[:, None], pose], 1), translation, shape)
         pixels = _project(marks, log_focal.exp(), centre, camera)
         visible = data.weights > 0
         error_px = float((pixels - data.points).norm(dim=-1)[visible].mean()) if visible.any() else float("nan")
