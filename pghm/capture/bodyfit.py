@@ -128,15 +128,15 @@ class BodyFitConfig:
     min_confidence: float = 0.3
     """Landmarks below this confidence are ignored."""
 
-    robust_sigma: float = 0.03
+    robust_sigma: float = 0.06
     """Geman-McClure scale of the 2D terms, as a fraction of the person's height."""
 
     weight_2d: float = 1.0
-    weight_3d: float = 0.5
+    weight_3d: float = 2.0
     huber_3d_m: float = 0.05
     weight_outside: float = 1.0
     weight_coverage: float = 0.3
-    weight_smooth: float = 20.0
+    weight_smooth: float = 100.0
     weight_pose: float = 0.002
     weight_limits: float = 1.0
     weight_focal: float = 0.1
