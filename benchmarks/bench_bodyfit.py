@@ -49,7 +49,11 @@ class Observations:
 
 
 def detect(folder: Path, indices: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """MediaPipe (video mode) on images ``indices``: (F, 33, 2) pixels, (F, 33) visibility, (F, 33, 3) world, (F, H, W) true masks."""
+    """MediaPipe (video mode) on images ``indices``.
+
+    Returns:
+        (F, 33, 2) pixels, (F, 33) visibility, (F, 33, 3) world landmarks, (F, H, W) true masks.
+    """
     import mediapipe as mp
 
     points = np.zeros((len(indices), NUM_LANDMARKS, 2), np.float32)
@@ -63,7 +67,8 @@ def detect(folder: Path, indices: list[int]) -> tuple[np.ndarray, np.ndarray, np
             result = pose.process(rgb)
             if result.pose_landmarks is None:
                 continue
-            for k, (mark, metric) in enumerate(zip(result.pose_landmarks.landmark, result.pose_world_landmarks.landmark)):
+            marks = zip(result.pose_landmarks.landmark, result.pose_world_landmarks.landmark)
+            for k, (mark, metric) in enumerate(marks):
                 points[n, k] = (mark.x * rgb.shape[1], mark.y * rgb.shape[0])
                 visibility[n, k] = mark.visibility
                 world[n, k] = (metric.x, metric.y, metric.z)
@@ -89,9 +94,12 @@ def main() -> None:
         if not cache.exists():
             np.savez(cache, *detect(folder, train))
         points, visibility, world, masks = np.load(cache).values()
-        order = np.concatenate([np.arange(len(train)) if r % 2 == 0 else np.arange(len(train))[::-1] for r in range(args.repeat)])
+        forward = np.arange(len(train))
+        order = np.concatenate([forward if r % 2 == 0 else forward[::-1] for r in range(args.repeat)])
         frames = np.asarray(train)[order]
-        true = camera_joints(body, a.shape, a.rotations_true[frames], a.translation_true[frames], a.world_to_camera[frames])
+        true = camera_joints(
+            body, a.shape, a.rotations_true[frames], a.translation_true[frames], a.world_to_camera[frames]
+        )
         height_px = np.array([np.ptp(np.nonzero(m.any(1))[0]) + 1 for m in masks[order]], np.float64)
         for known in (True, False):
             observations = Observations(

@@ -158,7 +158,8 @@ def symmetrise(data: dict[str, torch.Tensor], constants: dict, mirror: torch.Ten
         if other not in constants:
             continue
         mirrored = mirror[constants[other][0]].tolist()
-        if landmark_residual(data, landmark, mirrored, constants[other][1]) < landmark_residual(data, landmark, vertices, weights):
+        own = landmark_residual(data, landmark, vertices, weights)
+        if landmark_residual(data, landmark, mirrored, constants[other][1]) < own:
             out[landmark] = (mirrored, constants[other][1])
     return out
 
@@ -174,7 +175,9 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=7)
     args = parser.parse_args()
     setup_threads(1)  # small tensors: a second thread costs more in synchronisation than it gains
-    config = SynthConfig(identities=args.identities, views=6, frames=8, test_frames=1, width=512, height=512, texture_size=256)
+    config = SynthConfig(
+        identities=args.identities, views=6, frames=8, test_frames=1, width=512, height=512, texture_size=256
+    )
     if not (args.work / "meta.json").exists():
         generate(config.validate(), args.seed, args.work, workers=1, progress=False)
     data = collect(args.work)

@@ -76,7 +76,12 @@ FITTED_JOINTS = (
 """Canonical joints whose rotation is fitted (besides the root); hands, toes, face and the
 limbs' twist bones stay at rest."""
 
-HINGES = {"left_elbow": "left_shoulder", "right_elbow": "right_shoulder", "left_knee": "left_hip", "right_knee": "right_hip"}
+HINGES = {
+    "left_elbow": "left_shoulder",
+    "right_elbow": "right_shoulder",
+    "left_knee": "left_hip",
+    "right_knee": "right_hip",
+}
 """Hinge joint -> the joint heading the segment before it. The hinge turns about
 d x z / |d x z|, d that segment's rest direction (the synthetic poses' forward swing)."""
 
@@ -261,7 +266,8 @@ def _check(observations: Observations) -> int:
             raise PghmError(f"body fit: observations.{name} has shape {value.shape}, expected {shape}")
         if name != "masks" and not np.isfinite(value).all():
             bad = np.unique(np.nonzero(~np.isfinite(value))[0])
-            raise PghmError(f"body fit: observations.{name} is not finite in frames {observations.frame_index[bad].tolist()}")
+            frames_bad = np.asarray(observations.frame_index)[bad].tolist()
+            raise PghmError(f"body fit: observations.{name} is not finite in frames {frames_bad}")
     return frames
 
 
@@ -414,10 +420,13 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
 
     num_marks = regressor_index.numel()
 
-    def posed(rotvecs: Tensor, translation: Tensor, shape: Tensor, subset: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    def posed(
+        rotvecs: Tensor, translation: Tensor, shape: Tensor, subset: Tensor | None = None
+    ) -> tuple[Tensor, Tensor]:
         """(F, L, 3) world landmarks, and (F_subset, N, 3) silhouette vertices of the frames ``subset``."""
         rest_vertices, rest_joints = shape_model(shape)
-        transforms = forward_kinematics(roma.rotvec_to_rotmat(rotvecs), rest_joints, translation, skeleton.parents, levels)
+        rotmats = roma.rotvec_to_rotmat(rotvecs)
+        transforms = forward_kinematics(rotmats, rest_joints, translation, skeleton.parents, levels)
         marks = lbs(rest_vertices[:num_marks], weights[:num_marks], transforms).reshape(frames, num_land, -1, 3)
         marks = (regressor_weights[None, ..., None] * marks).sum(-2)
         if subset is None:
@@ -450,7 +459,9 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
     def objective(stage: int) -> tuple[Tensor, dict[str, Tensor]]:
         shape = torch.sigmoid(shape_logit)
         rotvecs = torch.cat([root[:, None], pose if stage > 0 else torch.zeros_like(pose)], 1)
-        subset = torch.as_tensor(rng.choice(frames, min(frames, config.silhouette_frames), replace=False)) if stage > 1 else None
+        subset = None
+        if stage > 1:
+            subset = torch.as_tensor(rng.choice(frames, min(frames, config.silhouette_frames), replace=False))
         marks, verts = posed(rotvecs, translation, shape, subset)
         focal = log_focal.exp()
         pixels = _project(marks, focal, centre, camera)
@@ -460,13 +471,15 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
         used = data.weights if stage > 0 else data.weights * torch.isin(torch.arange(num_land), torch.tensor(torso))
         terms = {"2d": config.weight_2d * (used * _geman_mcclure(squared, sigma)).sum() / frames}
         relative = marks - marks[:, hips].mean(1, keepdim=True)
-        error3d = torch.nn.functional.huber_loss(relative, data.world3d, reduction="none", delta=config.huber_3d_m).sum(-1)
+        error3d = torch.nn.functional.huber_loss(relative, data.world3d, reduction="none", delta=config.huber_3d_m)
+        error3d = error3d.sum(-1)
         terms["3d"] = config.weight_3d * (used * error3d).sum() / frames / config.huber_3d_m
         if fit_focal:
             terms["focal"] = config.weight_focal * (log_focal - np.log(focal0)) ** 2
         if stage > 0:
             if frames > 2:
-                accel = (marks[2:] - 2 * marks[1:-1] + marks[:-2]) / data.gaps[1:, None, None] / data.gaps[:-1, None, None]
+                gaps = data.gaps[1:, None, None] * data.gaps[:-1, None, None]
+                accel = (marks[2:] - 2 * marks[1:-1] + marks[:-2]) / gaps
                 terms["smooth"] = config.weight_smooth * (accel**2).sum() / frames
             hinge = (pose[:, hinge_rows] * skeleton.hinge_axes).sum(-1)
             terms["pose"] = config.weight_pose * (prior[:, None] * pose**2).sum() / frames
@@ -520,7 +533,8 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
         offset = translation.mean(0)
         camera_out = camera.clone()
         camera_out[:3, 3] = camera[:3, 3] + camera[:3, :3] @ offset
-        K_out = np.array([[focal, 0.0, float(centre[0])], [0.0, focal, float(centre[1])], [0.0, 0.0, 1.0]], np.float32)  # noqa: N806
+        cx, cy = float(centre[0]), float(centre[1])
+        K_out = np.array([[focal, 0.0, cx], [0.0, focal, cy], [0.0, 0.0, 1.0]], np.float32)  # noqa: N806
         residuals = {f"term_{k}": float(v) for k, v in terms.items()}
         residuals["landmark_error_px"] = error_px
         residuals["person_height_px"] = data.height_px
