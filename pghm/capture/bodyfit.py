@@ -279,15 +279,11 @@ def _prepare(observations: Observations, config: BodyFitConfig, rng: np.random.G
     world3d = torch.as_tensor(np.asarray(observations.landmarks_3d, np.float32)[:, index]) @ torch.as_tensor(
         CAMERA_LOOK, dtype=torch.float32
     )
-    visible = weights > 0
-    spans = [
-        float((p[v, 1].max() - p[v, 1].min()).clamp_min(p[v, 0].max() - p[v, 0].min())) if v.sum() > 2 else np.nan
-        for p, v in zip(points, visible)
-    ]
     masks = np.asarray(observations.masks, bool)
-    mask_heights = [np.ptp(np.nonzero(m.any(1))[0]) + 1 if m.any() else np.nan for m in masks]
-    height_px = float(np.nanmedian(mask_heights + spans)) if np.isfinite(mask_heights + spans).any() else 1.0
-    height_px = max(height_px, 1.0)
+    heights = [np.ptp(np.nonzero(m.any(1))[0]) + 1 for m in masks if m.any()]
+    if not heights:  # no mask anywhere: the landmarks' vertical extent
+        heights = [float(p[v, 1].max() - p[v, 1].min()) for p, v in zip(points, weights > 0) if v.sum() > 2]
+    height_px = max(float(np.median(heights)) if heights else 1.0, 1.0)
 
     step = max(1, int(np.ceil(max(masks.shape[1:]) / config.mask_size)))
     small = masks[:, ::step, ::step]
@@ -321,6 +317,7 @@ class _ShapeModel:
     """
 
     STEP = 0.05
+    """Phenotype step of the forward differences (Anny blends its targets piecewise linearly)."""
 
     def __init__(self, body: BodyModel, vertices: Tensor, bones: list[int]) -> None:
         self.body, self.vertices, self.bones = body, vertices, bones
@@ -489,8 +486,8 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
         if stage > 1:
             vpix = _project(verts, focal, centre, camera)
             h, w = data.outside.shape[-2:]
-            step = max(height, width) / max(h, w)
-            grid = torch.stack([vpix[..., 0] / (step * w), vpix[..., 1] / (step * h)], -1) * 2 - 1
+            cell = max(height, width) / max(h, w)  # full-size pixels per distance-map pixel
+            grid = torch.stack([vpix[..., 0] / (cell * w), vpix[..., 1] / (cell * h)], -1) * 2 - 1
             outside = torch.nn.functional.grid_sample(
                 data.outside[subset], grid[:, None], align_corners=False, padding_mode="border"
             )
