@@ -147,3 +147,5 @@ def test_bad_observations_name_the_problem() -> None:
     observations.landmarks_2d = observations.landmarks_2d[:, :20]
     with pytest.raises(PghmError, match="landmarks_2d"):
         fit_body(observations)
+    with pytest.raises(PghmError, match="smplx"):
+        fit_body(observations, BodyFitConfig(body="smplx"))

@@ -164,6 +164,8 @@ class BodyFitConfig:
     """Random subsampling of vertices and mask pixels."""
 
     def validate(self) -> BodyFitConfig:
+        if self.body != "anny":
+            raise PghmError(f"body fit: only the anny body has a measured landmark correspondence, got {self.body!r}")
         if not 10.0 <= self.default_fov_deg <= 150.0:
             raise PghmError(f"body fit: default_fov_deg must be 10 to 150 degrees, got {self.default_fov_deg}")
         if len(self.steps) != 3 or min(self.steps) < 0:
