@@ -239,7 +239,8 @@ def _write(folder: Path, config: CaptureConfig, front: FrontEnd) -> None:
     from pghm.capture.bodyfit import BodyFitConfig, fit_body
 
     observations = front.observations
-    fit = fit_body(observations, config.body or BodyFitConfig())
+    body_config = config.body or BodyFitConfig()
+    fit = fit_body(observations, body_config)
     n = len(observations.frame_index)
     train, test = test_split(n, config.test_every)
     height, width = observations.image_size
@@ -251,8 +252,8 @@ def _write(folder: Path, config: CaptureConfig, front: FrontEnd) -> None:
         rotations=fit.rotations,
         translation=fit.translation,
         shape=fit.shape,
-        body="anny",
-        bone_names=list(load_body("anny").bone_names),
+        body=body_config.body,
+        bone_names=list(load_body(body_config.body).bone_names),
         splits={"train": train, "test": test},
         frame_index=observations.frame_index,
         view_index=np.zeros(n, dtype=np.int32),
