@@ -135,10 +135,11 @@ def native_logs_silenced() -> Iterator[None]:
     except (AttributeError, OSError, ValueError):  # a captured or replaced sys.stderr
         on_descriptor = False
     try:
-        with open(os.devnull, "wb") as null:
-            os.dup2(null.fileno(), 2)
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 2)
+        os.close(null)
         if on_descriptor:
-            sys.stderr = open(os.dup(saved), "w", buffering=1, encoding=python_stderr.encoding, errors="backslashreplace")
+            sys.stderr = os.fdopen(os.dup(saved), "w", buffering=1, encoding=python_stderr.encoding, errors="replace")
         yield
     finally:
         if sys.stderr is not python_stderr:
