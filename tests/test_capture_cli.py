@@ -50,7 +50,8 @@ def test_video_without_a_person(tmp_path, capsys):
     mediapipe_required()
     frames = np.random.default_rng(1).integers(0, 256, (10, 64, 96, 3), np.uint8)
     path = write_video(tmp_path / "noise.mp4", frames)
-    assert_refused(tmp_path, *run_capture(tmp_path, capsys, path), "noise.mp4: no person found in any of the 10 frame(s)")
+    code, lines = run_capture(tmp_path, capsys, path)
+    assert_refused(tmp_path, code, lines, "noise.mp4: no person found in any of the 10 frame(s)")
 
 
 def test_too_few_frames_with_the_person(tmp_path, capsys):

@@ -152,7 +152,8 @@ def test_two_people_the_tracked_one_is_followed(subject_folder):
     small = frames[:, ::2, ::2]
     canvas = np.full((count, height, 2 * width, 3), 128, np.uint8)
     canvas[:, :, :width] = frames
-    canvas[:, height // 4 : height // 4 + small.shape[1], width + width // 4 : width + width // 4 + small.shape[2]] = small
+    top, left = height // 4, width + width // 4
+    canvas[:, top : top + small.shape[1], left : left + small.shape[2]] = small
     front, warnings = observe(write_video(subject_folder / "two.mp4", canvas), subject_folder)
     obs = front.observations
     assert warnings == [] and len(obs.frame_index) == count

@@ -66,6 +66,10 @@ def test_split(count: int, test_every: int) -> tuple[list[int], list[int]]:
     return [i for i in range(count) if (i + 1) % test_every != 0], test
 
 
+def _bar(config: CaptureConfig, total: int | None, stage: str) -> tqdm:
+    return tqdm(total=total, desc=f"capture: {stage}", unit="frame", disable=not config.progress, file=sys.stderr)
+
+
 def _require_frames(name: str, found: int, read: int, lost: list[int], config: CaptureConfig) -> None:
     """PghmError naming the file (and the frames lost) when fewer than ``config.min_frames`` are usable."""
     if read == 0:
@@ -88,7 +92,7 @@ def _track(source: VideoFile | ImageFolder, config: CaptureConfig) -> Track:
     if config.max_frames is not None:
         total = min(total or config.max_frames, config.max_frames)
     frames = source.frames(full, size, config.every, config.max_frames)
-    with tqdm(total=total, desc="capture: find person", unit="frame", disable=not config.progress, file=sys.stderr) as bar:
+    with _bar(config, total, "find person") as bar:
         track = track_person(frames, on_frame=bar.update)
     scale = np.array([source.width / size[1], source.height / size[0]] * 2)
     track.boxes = track.boxes * scale
@@ -120,7 +124,7 @@ def _observe(
     frames = source.frames(region, out_size, config.every, config.max_frames)
     with (
         PersonFinder() as find,
-        tqdm(total=count, desc="capture: masks, landmarks", unit="frame", disable=not config.progress, file=sys.stderr) as bar,
+        _bar(config, count, "masks, landmarks") as bar,
     ):
         for index, image in frames:
             if index in boxes:
