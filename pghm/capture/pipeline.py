@@ -60,7 +60,7 @@ def _warn(message: str) -> None:
     print(f"pghm: warning: {message}", file=sys.stderr)
 
 
-def test_split(count: int, test_every: int) -> tuple[list[int], list[int]]:
+def split_indices(count: int, test_every: int) -> tuple[list[int], list[int]]:
     """(train, test) image indices: images test_every - 1, 2 test_every - 1, ... are the test split."""
     test = [i for i in range(count) if (i + 1) % test_every == 0]
     return [i for i in range(count) if (i + 1) % test_every != 0], test
@@ -246,7 +246,7 @@ def _write(folder: Path, config: CaptureConfig, front: FrontEnd) -> None:
     body_config = config.body or BodyFitConfig()
     fit = fit_body(observations, body_config)
     n = len(observations.frame_index)
-    train, test = test_split(n, config.test_every)
+    train, test = split_indices(n, config.test_every)
     height, width = observations.image_size
     arrays = SubjectArrays(
         K=np.repeat(fit.K[None], n, axis=0),
