@@ -172,3 +172,20 @@ def test_frames_without_the_person_are_dropped_with_one_warning(subject_folder):
     assert front.dropped == [3, 5]
     assert len(warnings) == 1 and "2 of 10 frames (3, 5)" in warnings[0] and "gaps.mp4" in warnings[0]
     assert len(list((subject_folder / "subject" / "images").glob("*.png"))) == 8
+
+
+def test_native_logs_are_silenced_but_python_messages_are_not():
+    """MediaPipe's C++ logs go to descriptor 2; progress bars and messages go through sys.stderr."""
+    import subprocess
+    import sys
+
+    code = (
+        "import os, sys\n"
+        "from pghm.capture.frontend import native_logs_silenced\n"
+        "with native_logs_silenced():\n"
+        "    os.write(2, b'native log\\n')\n"
+        "    print('python message', file=sys.stderr)\n"
+        "os.write(2, b'after\\n')\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert result.stderr.splitlines() == ["python message", "after"]
