@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import resource
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -28,24 +27,12 @@ from common import load_average, print_table, write_json
 
 from pghm.body import load_body
 from pghm.capture.bodyfit import BodyFitConfig, fit_body
+from pghm.capture.frontend import Observations
 from pghm.capture.landmarks import NUM_LANDMARKS
 from pghm.capture.metrics import camera_joints, error_2d_percent, mpjpe, pa_mpjpe, project
 from pghm.data.subject import Subject, image_name, read_mask, read_rgb
 from pghm.data.synth.config import PRESETS
 from pghm.data.synth.generate import generate
-
-
-@dataclass
-class Observations:
-    """pghm.capture.frontend.Observations' fields (see docs/capture.md)."""
-
-    frame_index: np.ndarray
-    image_size: tuple[int, int]
-    K: np.ndarray | None
-    landmarks_2d: np.ndarray
-    confidence: np.ndarray
-    landmarks_3d: np.ndarray
-    masks: np.ndarray
 
 
 def detect(folder: Path, indices: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -18,6 +18,7 @@ from scipy.ndimage import binary_closing, binary_fill_holes
 
 from pghm.body import BodyPose, load_body
 from pghm.capture.bodyfit import BodyFitConfig, fit_body
+from pghm.capture.frontend import Observations
 from pghm.capture.landmarks import BODY_LANDMARKS, NUM_LANDMARKS, landmark_points
 from pghm.capture.metrics import camera_joints, error_2d_percent, mpjpe, pa_mpjpe, project
 from pghm.data.synth.cameras import intrinsics, look_at
@@ -28,19 +29,6 @@ FRAMES = 24
 SIZE = 320
 PIXEL_NOISE = 1.5
 METRIC_NOISE = 0.02
-
-
-@dataclass
-class Observations:
-    """The front end's output (pghm.capture.frontend.Observations: the contract's fields)."""
-
-    frame_index: np.ndarray
-    image_size: tuple[int, int]
-    K: np.ndarray | None
-    landmarks_2d: np.ndarray
-    confidence: np.ndarray
-    landmarks_3d: np.ndarray
-    masks: np.ndarray
 
 
 @dataclass
