@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path, PureWindowsPath
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ import torch
 
 from pghm.errors import AvatarFileError
 from pghm.io.torch_file import ZIP_MAGIC
-from pghm.io.avatar import Avatar, avatar_payload, load_avatar, save_avatar
+from pghm.io.avatar import Avatar, avatar_payload, load_avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig
 
 SMALL = ModelConfig(
@@ -190,3 +191,49 @@ def test_member_of_a_prior_is_that_identity():
         prior.member(3)
     with pytest.raises(Exception, match="this is an avatar"):
         member.member(0)
+
+
+def _strings(value: object):
+    """Every string inside nested dicts and lists."""
+    if isinstance(value, dict):
+        for item in value.values():
+            yield from _strings(item)
+    elif isinstance(value, (list, tuple)):
+        for item in value:
+            yield from _strings(item)
+    elif isinstance(value, str):
+        yield value
+
+
+ASSETS = sorted((Path(__file__).resolve().parent.parent / "assets").glob("*.pt"))
+
+
+@pytest.mark.parametrize("path", ASSETS, ids=[p.name for p in ASSETS])
+def test_shipped_files_record_no_absolute_path(path):
+    """No metadata string is, or contains, an absolute path of the machine that made the file."""
+    metadata = torch.load(path, weights_only=True)["metadata"]
+    strings = list(_strings(metadata))
+    assert strings
+    for text in strings:
+        for word in text.split():
+            assert not (word.startswith("/") or word.startswith("~") or PureWindowsPath(word).drive), text
+
+
+def test_recorded_path_is_relative_inside_the_working_directory_else_a_name(tmp_path, monkeypatch):
+    (tmp_path / "data" / "subject_000").mkdir(parents=True)
+    monkeypatch.chdir(tmp_path / "data")
+    assert recorded_path(tmp_path / "data" / "subject_000") == "subject_000"
+    assert recorded_path("subject_000/../subject_000") == "subject_000"
+    monkeypatch.chdir(tmp_path / "data" / "subject_000")
+    assert recorded_path(tmp_path / "data" / "prior.pt") == "prior.pt"
+
+
+def test_load_avatar_at_the_top_of_the_package(tmp_path):
+    import pghm
+    from pghm import load_avatar as top_level
+
+    assert top_level is load_avatar and "load_avatar" in pghm.__all__
+    save_avatar(tmp_path / "a.pt", make_avatar())
+    assert top_level(tmp_path / "a.pt").kind == "avatar"
+    with pytest.raises(AttributeError, match="no attribute 'load_avatr'"):
+        pghm.load_avatr  # noqa: B018

@@ -115,17 +115,35 @@ def test_eval_of_a_perfect_render(tiny_dataset, prior_file, tmp_path, monkeypatc
         FitConfig(stage1=LoopConfig(steps=1, checkpoint_every=0), stage2=LoopConfig(steps=0), lpips=False),
     )
 
-    def perfect(avatar, data, indices, body_model_path=None):
+    def opaque(avatar, data, indices, body_model_path=None):
+        """The stored image itself, fully opaque: perfect on white, every pixel outside the mask a halo."""
         for index in indices:
-            target = data.load(0, index).image
-            yield index, target, target.clone()
+            sample = data.load(0, index)
+            yield sample, sample.image.clone(), torch.ones(sample.image.shape[1:])
 
-    monkeypatch.setattr(evaluate_module, "render_images", perfect)
+    def cut_out(avatar, data, indices, body_model_path=None):
+        """The subject exactly, transparent outside its mask: perfect on any background."""
+        for index in indices:
+            sample = data.load(0, index)
+            yield sample, sample.image * sample.mask, sample.mask[0].clone()
+
+    monkeypatch.setattr(evaluate_module, "render_images", opaque)
     result = evaluate_module.evaluate(avatar, tiny_dataset / "subject_000", tmp_path / "r.json", tmp_path / "s.png")
     assert result.images and all(math.isinf(p) and p > 0 for p in result.psnr)
     assert result.ssim == pytest.approx([1.0] * len(result.ssim), abs=1e-6)
     assert math.isinf(result.summary()["psnr"])
     assert (tmp_path / "r.json").is_file() and (tmp_path / "s.png").is_file()
+    data = TrainingData(tiny_dataset / "subject_000", split="test")
+    masks = [data.load(0, i).mask[0] for i in result.images]
+    # Outside the mask a white-background image is white or partly covered (mean >= 0.5): all halo.
+    assert result.halo == [int((m == 0).sum()) for m in masks]
+    assert result.iou == pytest.approx([float(m.mean()) for m in masks])
+
+    monkeypatch.setattr(evaluate_module, "render_images", cut_out)
+    black = evaluate_module.evaluate(avatar, tiny_dataset / "subject_000", background=(0.0, 0.0, 0.0))
+    assert all(math.isinf(p) for p in black.psnr)
+    assert black.halo == [0] * len(masks) and black.iou == [1.0] * len(masks)
+    assert black.summary()["background"] == [0.0, 0.0, 0.0]
 
 
 def test_eval_of_a_real_avatar_writes_reports(tiny_dataset, prior_file, tmp_path):

@@ -28,14 +28,13 @@ def parse_size(text: str) -> tuple[int, int]:
 
 
 def parse_colour(text: str) -> tuple[float, float, float]:
-    """'1,1,1' (floats in [0, 1]) -> (1.0, 1.0, 1.0)."""
+    """An argparse type: :func:`pghm.train.background.parse_colour` ('1,1,1', 'black', '#334455')."""
+    from pghm.train.background import parse_colour as parse
+
     try:
-        values = tuple(float(part) for part in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"colour must look like 1,1,1, got {text!r}") from None
-    if len(values) != 3 or not all(0.0 <= v <= 1.0 for v in values):
-        raise argparse.ArgumentTypeError(f"colour must be three numbers in [0, 1], got {text!r}")
-    return values
+        return parse(text)
+    except PghmError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -62,7 +61,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--identity", type=int, default=0, help="identity of a prior's bank")
     parser.add_argument("--static", action="store_true", help="render the static Gaussians (I_s)")
     parser.add_argument("--no-view-dependent", action="store_true", help="leave out the view-dependent colour")
-    parser.add_argument("--background", type=parse_colour, default=(1.0, 1.0, 1.0), help="r,g,b in [0, 1]")
+    parser.add_argument(
+        "--background", type=parse_colour, default=(1.0, 1.0, 1.0), help="r,g,b in [0, 1], #rrggbb, white or black"
+    )
     parser.add_argument("--pitch", type=float, default=0.0, help="camera elevation, degrees")
     parser.add_argument("--yaw", type=float, default=0.0, help="camera azimuth, degrees (0: front)")
     parser.add_argument("--no-follow", action="store_true", help="keep the camera still when the body moves")

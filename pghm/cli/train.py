@@ -7,7 +7,9 @@ import json
 import logging
 import sys
 
+from pghm.cli.render import parse_colour
 from pghm.model import ModelConfig
+from pghm.train.background import BACKGROUND_KINDS, WHITE
 from pghm.train.fit import FitConfig
 from pghm.train.loop import LoopConfig
 from pghm.train.losses import LossWeights
@@ -38,7 +40,8 @@ def _loop_arguments(parser: argparse.ArgumentParser, prefix: str, defaults: Loop
     )
 
 
-def _common(parser: argparse.ArgumentParser, loss: LossWeights) -> None:
+def _common(parser: argparse.ArgumentParser, loop: LoopConfig) -> None:
+    loss = loop.loss
     parser.add_argument("--seed", type=int, default=0, help="seeds the batch plan (default %(default)s)")
     parser.add_argument(
         "--checkpoint-every", type=int, default=100, help="steps between checkpoints (default %(default)s)"
@@ -50,6 +53,19 @@ def _common(parser: argparse.ArgumentParser, loss: LossWeights) -> None:
         type=float,
         default=loss.pose_prior,
         help="weight of a Gaussian prior holding the pose corrections near the estimate; 0: off (default %(default)s)",
+    )
+    parser.add_argument(
+        "--background",
+        choices=BACKGROUND_KINDS,
+        default=loop.background,
+        help="what targets are composited on and renders drawn on: white (the paper), a random colour "
+        "or a random gradient per image and step (default %(default)s)",
+    )
+    parser.add_argument(
+        "--silhouette",
+        type=float,
+        default=loss.silhouette,
+        help="weight of the L1 term between the render's alpha and the mask; 0: off (default %(default)s)",
     )
     parser.add_argument("--no-lpips", action="store_true", help="leave the LPIPS term out even if its weights exist")
     parser.add_argument("--body-model-path", default=None, help="your SMPL-X model file, for SMPL-X data")
@@ -68,7 +84,7 @@ def register(subparsers) -> None:
     )
     prior.add_argument("--identities", type=int, default=None, help="train on the first N subjects only (default: all)")
     _model_arguments(prior)
-    _common(prior, PriorConfig().loop.loss)
+    _common(prior, PriorConfig().loop)
     prior.set_defaults(func=run_train_prior)
 
     fit = subparsers.add_parser("fit", help="personalise a prior to one subject (monocular video)")
@@ -84,7 +100,7 @@ def register(subparsers) -> None:
         default=fit_defaults.pose_smoothing,
         help="sigma in frames of the temporal filter on the estimated poses; 0: as stored (default %(default)s)",
     )
-    _common(fit, fit_defaults.stage1.loss)
+    _common(fit, fit_defaults.stage1)
     fit.set_defaults(func=run_fit)
 
     evaluate = subparsers.add_parser("eval", help="PSNR/SSIM/LPIPS of an avatar on a subject's held-out frames")
@@ -94,6 +110,12 @@ def register(subparsers) -> None:
     evaluate.add_argument("--report", default=None, help="JSON report path (default: AVATAR.eval.json)")
     evaluate.add_argument("--strip", default=None, help="PNG strip path (default: AVATAR.eval.png)")
     evaluate.add_argument("--true-poses", action="store_true", help="render with a synthetic subject's exact poses")
+    evaluate.add_argument(
+        "--background",
+        type=parse_colour,
+        default=WHITE,
+        help="behind render and ground truth: white (default, the paper's), black, r,g,b in [0, 1] or #rrggbb",
+    )
     evaluate.add_argument("--body-model-path", default=None)
     evaluate.set_defaults(func=run_eval)
 
@@ -113,7 +135,8 @@ def run_train_prior(args: argparse.Namespace) -> int:
         images_per_shard=args.images,
         seed=args.seed,
         checkpoint_every=args.checkpoint_every,
-        loss=LossWeights(pose_prior=args.pose_prior),
+        loss=LossWeights(pose_prior=args.pose_prior, silhouette=args.silhouette),
+        background=args.background,
     )
     config = PriorConfig(
         model=model,
@@ -142,7 +165,8 @@ def run_fit(args: argparse.Namespace) -> int:
             images_per_shard=images,
             seed=args.seed,
             checkpoint_every=args.checkpoint_every,
-            loss=LossWeights(pose_prior=args.pose_prior),
+            loss=LossWeights(pose_prior=args.pose_prior, silhouette=args.silhouette),
+            background=args.background,
         )
         for steps, images in ((args.stage1_steps, args.stage1_images), (args.stage2_steps, args.stage2_images))
     ]
@@ -173,6 +197,7 @@ def run_eval(args: argparse.Namespace) -> int:
         split=args.split,
         body_model_path=args.body_model_path,
         true_poses=args.true_poses,
+        background=args.background,
     )
     print(json.dumps(result.summary()))
     print(f"wrote {report} and {strip}")

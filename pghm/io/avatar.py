@@ -110,6 +110,17 @@ def _plain(value: object, where: str) -> object:
         raise PghmError(f"avatar {where} must be plain JSON-like data: {error}") from None
 
 
+def recorded_path(path: str | Path) -> str:
+    """How a file an avatar was made from is named in its metadata: relative to the working
+    directory when inside it, else its name alone (a file records no directory of the machine
+    that made it)."""
+    resolved = Path(path).resolve()
+    try:
+        return resolved.relative_to(Path.cwd().resolve()).as_posix()
+    except ValueError:
+        return resolved.name
+
+
 def avatar_payload(avatar: Avatar) -> dict:
     """The dictionary written to disk."""
     body = {"name": avatar.body_name, "shape": avatar.shape.detach().float().cpu()}

@@ -42,6 +42,7 @@ class Sample:
         image_index: index of the image within its subject.
         frame_key: global index of the pose (the frame, shared by the views of one instant).
         image: (3, H, W) float32 target, white background.
+        mask: (1, H, W) float32, 1 on the subject, 0 elsewhere.
         camera: the image's camera.
         rotations: (J, 3) pose to train on: the stored estimate (possibly noisy), smoothed
             over time, or exact (see :class:`TrainingData`).
@@ -52,6 +53,7 @@ class Sample:
     image_index: int
     frame_key: int
     image: Tensor
+    mask: Tensor
     camera: Camera
     rotations: Tensor
     translation: Tensor
@@ -199,6 +201,7 @@ class TrainingData:
             image_index=image_index,
             frame_key=self.frame_offsets[identity] + int(frame.frame_index),
             image=torch.from_numpy(np.ascontiguousarray(frame.image)).permute(2, 0, 1).float(),
+            mask=torch.from_numpy(np.ascontiguousarray(frame.mask))[None].float(),
             camera=Camera.from_matrices(
                 torch.as_tensor(frame.K, dtype=torch.float32),
                 torch.as_tensor(frame.world_to_camera, dtype=torch.float32),

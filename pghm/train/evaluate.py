@@ -1,9 +1,16 @@
 """``pghm eval``: image quality of an avatar on a subject's held-out frames.
 
-PSNR, SSIM (and LPIPS when its weights are on this machine) over whole images on a white
-background, as the paper measures, of the dynamic render I_d against the ground truth,
-with the poses and cameras the subject folder provides. Writes a JSON report and a PNG
-strip (ground truth | render | error heat map) of a few frames.
+PSNR, SSIM (and LPIPS when its weights are on this machine) over whole images, of the dynamic
+render I_d against the ground truth, with the poses and cameras the subject folder provides. On
+white (the default, as the paper measures) the ground truth is the stored image; on another
+background b it is the stored image moved through its mask m onto b, m I + (1 - m) b
+(:mod:`pghm.train.background`). Whatever the background, two silhouette measures:
+
+    IoU   |{A > 0.5} & {m}| / |{A > 0.5} | {m}|, A the render's accumulated alpha;
+    halo  the number of pixels outside the mask whose render on black has a mean RGB above
+          HALO_LEVEL: a fringe that white hides and a dark background shows.
+
+Writes a JSON report and a PNG strip (ground truth | render | error heat map) of a few frames.
 """
 
 from __future__ import annotations
@@ -11,27 +18,32 @@ from __future__ import annotations
 import io
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 from PIL import Image
+from torch import Tensor
 
 from pghm.body.pose import BodyPose
 from pghm.errors import PghmError
 from pghm.io.atomic import atomic_write_bytes
-from pghm.io.avatar import Avatar, avatar_geometry, load_avatar
+from pghm.io.avatar import Avatar, avatar_geometry, load_avatar, recorded_path
 from pghm.model.evaluator import CachedEvaluator
 from pghm.splat import render
-from pghm.train.data import TrainingData
-from pghm.train.loop import BACKGROUND
+from pghm.train.background import BLACK, WHITE, composite_render, composite_target
+from pghm.train.data import Sample, TrainingData
 from pghm.train.losses import psnr, ssim
 from pghm.train.lpips import load_lpips, lpips_status
 
 ERROR_SCALE = 0.25
 """Mean absolute RGB error shown at full intensity in the heat map."""
 STRIP_FRAMES = 6
+HALO_LEVEL = 0.25
+"""Mean RGB above which a pixel outside the mask counts as halo, rendered on black."""
+COVERED = 0.5
+"""Accumulated alpha above which a render's pixel counts as inside its silhouette."""
 
 
 @dataclass
@@ -42,16 +54,39 @@ class EvalResult:
     ssim: list[float]
     lpips: list[float] | None
     images: list[int]
+    iou: list[float] = field(default_factory=list)
+    halo: list[int] = field(default_factory=list)
+    background: tuple[float, float, float] = WHITE
 
     def summary(self) -> dict:
         def mean(values):
             finite = [v for v in values if math.isfinite(v)]
             return float(np.mean(finite)) if len(finite) == len(values) else math.inf
 
-        out = {"images": len(self.images), "psnr": mean(self.psnr), "ssim": float(np.mean(self.ssim))}
+        out = {
+            "images": len(self.images),
+            "background": list(self.background),
+            "psnr": mean(self.psnr),
+            "ssim": float(np.mean(self.ssim)),
+            "iou": float(np.mean(self.iou)),
+            "halo_pixels": float(np.mean(self.halo)),
+        }
         if self.lpips is not None:
             out["lpips"] = float(np.mean(self.lpips))
         return out
+
+
+def silhouette_iou(alpha: Tensor, mask: Tensor) -> float:
+    """IoU of the covered pixels {alpha > COVERED} of a render's alpha (H, W) and a mask (H, W)
+    in {0, 1}; 1 when both are empty."""
+    covered, inside = alpha > COVERED, mask > 0.5
+    union = int((covered | inside).sum())
+    return int((covered & inside).sum()) / union if union else 1.0
+
+
+def halo_pixels(rgb_on_black: Tensor, mask: Tensor) -> int:
+    """The pixels outside the mask (H, W) whose render on black (3, H, W) has a mean RGB above HALO_LEVEL."""
+    return int(((rgb_on_black.mean(0) > HALO_LEVEL) & (mask <= 0.5)).sum())
 
 
 def heat_map(error: np.ndarray) -> np.ndarray:
@@ -62,7 +97,7 @@ def heat_map(error: np.ndarray) -> np.ndarray:
 
 
 def render_images(avatar: Avatar, data: TrainingData, indices: list[int], body_model_path: str | None = None):
-    """Yield (index, target (3,H,W), render (3,H,W)) of the dynamic Gaussians, one image at a time."""
+    """Yield (sample, render on black (3, H, W), alpha (H, W)) of the dynamic Gaussians, one image at a time."""
     evaluator = CachedEvaluator(avatar.model.eval(), avatar_geometry(avatar, body_model_path=body_model_path))
     identity = avatar.identity_map()
     for index in indices:
@@ -70,10 +105,17 @@ def render_images(avatar: Avatar, data: TrainingData, indices: list[int], body_m
         pose = BodyPose(sample.rotations[None], sample.translation[None])
         g = evaluator.evaluate(identity, pose, sample.camera.centre.float()).dynamic
         with torch.no_grad():
-            image = render(
-                g.means[0], g.scales[0], g.colors[0], g.opacities[0], sample.camera, background=BACKGROUND
-            ).rgb
-        yield index, sample.image, image.permute(2, 0, 1).clamp(0, 1)
+            drawn = render(g.means[0], g.scales[0], g.colors[0], g.opacities[0], sample.camera, background=BLACK)
+        yield sample, drawn.rgb.permute(2, 0, 1), drawn.alpha
+
+
+def on_background(sample: Sample, rgb_on_black: Tensor, alpha: Tensor, background: tuple[float, float, float]):
+    """(target, render), each (3, H, W) in [0, 1], on ``background``: on white the stored image
+    (the paper's measure), elsewhere the image moved through its mask."""
+    colour = torch.tensor(background, dtype=rgb_on_black.dtype).view(3, 1, 1)
+    image = composite_render(rgb_on_black, alpha[None], colour).clamp(0, 1)
+    target = sample.image if background == WHITE else composite_target(sample.image, sample.mask, colour)
+    return target, image
 
 
 def evaluate(
@@ -85,6 +127,7 @@ def evaluate(
     body_model_path: str | None = None,
     true_poses: bool = False,
     images: list[int] | None = None,
+    background: tuple[float, float, float] = WHITE,
 ) -> EvalResult:
     """Metrics of ``avatar`` on the ``split`` images of the subject; optional JSON and PNG outputs.
 
@@ -92,7 +135,9 @@ def evaluate(
         true_poses: render with a synthetic subject's exact poses rather than the stored
             estimates (measures appearance apart from pose error).
         images: evaluate only these image indices of the split (None: all of them).
+        background: (r, g, b) in [0, 1] behind the render and the target (white: the paper's).
     """
+    background = tuple(float(c) for c in background)
     avatar = avatar if isinstance(avatar, Avatar) else load_avatar(avatar)
     if avatar.kind != "avatar":
         raise PghmError("eval needs a personalised avatar (from pghm fit), not a prior")
@@ -105,10 +150,14 @@ def evaluate(
             raise PghmError(f"images {outside[:5]} are not in the subject's '{split}' split")
         indices = [int(i) for i in images]
     strip_at = set(indices[:: max(1, len(indices) // STRIP_FRAMES)][:STRIP_FRAMES])
-    result = EvalResult([], [], [] if lpips is not None else None, [])
+    result = EvalResult([], [], [] if lpips is not None else None, [], background=background)
     rows = []
-    for index, target, image in render_images(avatar, data, indices, body_model_path):
+    for sample, rgb_on_black, alpha in render_images(avatar, data, indices, body_model_path):
+        index = sample.image_index
+        target, image = on_background(sample, rgb_on_black, alpha, background)
         result.images.append(index)
+        result.iou.append(silhouette_iou(alpha, sample.mask[0]))
+        result.halo.append(halo_pixels(rgb_on_black.clamp(0, 1), sample.mask[0]))
         result.psnr.append(float(psnr(image[None], target[None])))
         result.ssim.append(float(ssim(image[None], target[None])))
         if lpips is not None:
@@ -121,15 +170,28 @@ def evaluate(
     if report is not None:
         payload = {
             "avatar_metadata": avatar.metadata,
-            "subject": str(Path(subject_dir).resolve()),
+            "subject": recorded_path(subject_dir),
             "split": split,
             "poses": "exact (synthetic)" if true_poses else "as stored",
             "mean": result.summary(),
             "lpips": lpips_status(),
+            "halo": f"pixels outside the mask with mean RGB above {HALO_LEVEL} rendered on black",
             "per_image": [
-                {"image": i, "psnr": p, "ssim": s, **({"lpips": lp} if lp is not None else {})}
-                for i, p, s, lp in zip(
-                    result.images, result.psnr, result.ssim, result.lpips or [None] * len(result.images)
+                {
+                    "image": i,
+                    "psnr": p,
+                    "ssim": s,
+                    "iou": u,
+                    "halo_pixels": h,
+                    **({"lpips": lp} if lp is not None else {}),
+                }
+                for i, p, s, u, h, lp in zip(
+                    result.images,
+                    result.psnr,
+                    result.ssim,
+                    result.iou,
+                    result.halo,
+                    result.lpips or [None] * len(result.images),
                 )
             ],
         }

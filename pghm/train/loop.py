@@ -36,12 +36,11 @@ from pghm.model.pghm import PGHM
 from pghm.splat import Camera, render
 from pghm.train import distributed
 from pghm.train.data import PoseCorrections, Sample, TrainingData
-from pghm.train.losses import LossWeights, objective, psnr
+from pghm.train.background import BACKGROUND_KINDS, BLACK, WHITE, composite_render, composite_target, draw_backgrounds
+from pghm.train.losses import LossWeights, objective, psnr, silhouette
 
 log = logging.getLogger(__name__)
 
-BACKGROUND = (1.0, 1.0, 1.0)
-"""Training targets are composited on white, as the paper evaluates."""
 LR_BACKOFF = 0.5
 """Learning-rate factor applied after a non-finite step."""
 CHECKPOINT_FORMAT = "pghm-checkpoint"
@@ -70,6 +69,14 @@ class LoopConfig:
     max_grad_norm: float = 1.0
     """Gradient clipping threshold (global L2 norm)."""
     loss: LossWeights = field(default_factory=LossWeights)
+    background: str = "white"
+    """What the targets are composited on and the renders drawn on, one of
+    :data:`pghm.train.background.BACKGROUND_KINDS`: ``white`` (the paper's stored targets) or a
+    background drawn per image and step (``colour``, ``gradient``)."""
+
+    def __post_init__(self) -> None:
+        if self.background not in BACKGROUND_KINDS:
+            raise PghmError(f"background must be one of {', '.join(BACKGROUND_KINDS)}, got {self.background!r}")
 
 
 def distinct_frames(samples: list[Sample]) -> list[int]:
@@ -109,8 +116,11 @@ class AvatarObjective(nn.Module):
     def identity_map(self, identity: int) -> Tensor:
         return self.latent if self.latent is not None else self.model.decode_identity(identity)
 
-    def renders(self, samples: list[Sample], geometry: SubjectGeometry) -> tuple[Tensor, Tensor, Tensor]:
-        """Static and dynamic renders (B, 3, H, W) of one identity's samples, and the regulariser."""
+    def renders(
+        self, samples: list[Sample], geometry: SubjectGeometry, backgrounds: Tensor | None = None
+    ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+        """Static and dynamic renders (B, 3, H, W) of one identity's samples on white, or on
+        ``backgrounds`` (B, 3, H, W) when given; their accumulated alphas (B, 1, H, W); the regulariser."""
         # One pose per distinct frame; the views of a frame share it.
         keys = [s.frame_key for s in samples]
         unique = distinct_frames(samples)
@@ -143,15 +153,29 @@ class AvatarObjective(nn.Module):
             # which render refuses.
             poison = sum(t.sum() for t in both) * math.nan
             blank = poison.expand(len(samples), 3, samples[0].camera.height, samples[0].camera.width)
-            return blank, blank, out.regularizer + poison
-        images = render(*both, cameras, background=BACKGROUND).rgb.permute(0, 3, 1, 2)
-        return images[: len(samples)], images[len(samples) :], out.regularizer
+            return blank, blank, blank[:, :1], blank[:, :1], out.regularizer + poison
+        drawn = render(*both, cameras, background=WHITE if backgrounds is None else BLACK)
+        images, alphas = drawn.rgb.permute(0, 3, 1, 2), drawn.alpha[:, None]
+        if backgrounds is not None:
+            images = composite_render(images, alphas, torch.cat([backgrounds, backgrounds]))
+        count = len(samples)
+        return images[:count], images[count:], alphas[:count], alphas[count:], out.regularizer
 
-    def forward(self, samples: list[Sample], geometry: SubjectGeometry) -> tuple[Tensor, dict[str, float]]:
-        """The loss of one identity's samples and its terms."""
-        static, dynamic, regularizer = self.renders(samples, geometry)
+    def forward(
+        self, samples: list[Sample], geometry: SubjectGeometry, backgrounds: Tensor | None = None
+    ) -> tuple[Tensor, dict[str, float]]:
+        """The loss of one identity's samples and its terms; with ``backgrounds`` (B, 3, H, W),
+        targets and renders are composited on them (see :mod:`pghm.train.background`)."""
+        static, dynamic, static_alpha, dynamic_alpha, regularizer = self.renders(samples, geometry, backgrounds)
         target = torch.stack([s.image for s in samples])
+        mask = torch.stack([s.mask for s in samples])
+        if backgrounds is not None:
+            target = composite_target(target, mask, backgrounds)
         loss, terms = objective(static, dynamic, target, regularizer, self.weights, self.lpips)
+        if self.weights.silhouette > 0:
+            sil_s, sil_d = silhouette(static_alpha, mask).mean(), silhouette(dynamic_alpha, mask).mean()
+            loss = loss + self.weights.silhouette * (sil_s + sil_d)
+            terms.update(sil_s=float(sil_s.detach()), sil_d=float(sil_d.detach()), loss=float(loss.detach()))
         if self.corrections is not None and self.weights.pose_prior > 0:
             prior = self.corrections.prior(torch.tensor(distinct_frames(samples)))
             loss = loss + self.weights.pose_prior * prior
@@ -299,10 +323,18 @@ def run_stage(
                 samples = data.load_group(identity, images)
                 if not samples:
                     continue
+                # Drawn from the group's place in the global plan, whichever process computes it.
+                backgrounds = draw_backgrounds(
+                    config.background,
+                    len(samples),
+                    samples[0].camera.height,
+                    samples[0].camera.width,
+                    (config.seed, state.step, rank + position * world),
+                )
                 # Gradients of all but the last group accumulate locally; DDP averages once.
                 last = position == len(mine) - 1
                 with contextlib.nullcontext() if last else distributed.no_sync(module):
-                    loss, terms = module(samples, geometry_of(identity))
+                    loss, terms = module(samples, geometry_of(identity), backgrounds)
                     (loss / len(mine)).backward()
                 total += loss.item()
                 groups += 1

@@ -3,7 +3,12 @@
     L = l1 [L1(I_s, I) + L1(I_d, I)] + l2 [(1 - SSIM)(I_s, I) + (1 - SSIM)(I_d, I)]
       + l3 [LPIPS(I_s, I) + LPIPS(I_d, I)] + l4 L_reg
 
-with (l1, l2, l3, l4) = (0.8, 0.2, 0.2, 0.1). SSIM uses a Gaussian window of 11 taps,
+with (l1, l2, l3, l4) = (0.8, 0.2, 0.2, 0.1), plus two terms the paper does not have: a
+Gaussian prior on the pose corrections and the silhouette term
+
+    l_sil [S(A_s, m) + S(A_d, m)],   S(A, m) = mean over pixels |A - m|,
+
+the L1 distance of the renders' accumulated alpha A to the target's mask m. SSIM uses a Gaussian window of 11 taps,
 sigma 1.5, K1 = 0.01, K2 = 0.03 over the valid region (pytorch-msssim, which implements
 exactly Wang et al. 2004's definition); the same function is the evaluation metric.
 """
@@ -34,6 +39,8 @@ class LossWeights:
     pose_prior: float = 0.0
     """Weight of the Gaussian prior on the pose corrections (not in the paper; 0: off), see
     :meth:`pghm.train.data.PoseCorrections.prior`."""
+    silhouette: float = 0.0
+    """Weight of the silhouette term (not in the paper; 0: off), see :func:`silhouette`."""
 
     def __post_init__(self) -> None:
         negative = [name for name, value in asdict(self).items() if not value >= 0]
@@ -50,6 +57,15 @@ def psnr(x: Tensor, y: Tensor) -> Tensor:
     """(B,) PSNR in dB of images in [0, 1]; +inf for identical images."""
     mse = (x - y).square().flatten(1).mean(1)
     return torch.where(mse > 0, -10.0 * torch.log10(mse), torch.full_like(mse, math.inf))
+
+
+def silhouette(alpha: Tensor, mask: Tensor) -> Tensor:
+    """(B,) mean over pixels of |A - m|: accumulated alphas (B, 1, H, W) against masks (B, 1, H, W).
+
+    On white a semi-transparent fringe outside the mask costs nothing in the photometric terms;
+    here it costs its opacity, and a hole inside the mask its transparency.
+    """
+    return (alpha - mask).abs().flatten(1).mean(1)
 
 
 def image_losses(render: Tensor, target: Tensor, lpips=None) -> dict[str, Tensor]:

@@ -124,11 +124,17 @@ def load_lpips() -> LPIPS | None:
     return model
 
 
-def lpips_status() -> str:
-    """One line saying where the LPIPS weights were found, or which file is missing."""
+def lpips_status(directories: bool = True) -> str:
+    """One line saying where the LPIPS weights were found, or which file is missing; without
+    ``directories`` it names the files only (for metadata, which records no path of this machine)."""
+
+    def shown(path: Path) -> str | Path:
+        return path if directories else path.name
+
     backbone = hub_checkpoints() / BACKBONE_FILE
     if not backbone.is_file():
-        return f"LPIPS off: backbone weights {backbone} not found (nothing is downloaded)"
-    if _linear_weights_path() is None:
-        return f"LPIPS off: linear weights {hub_checkpoints() / LINEAR_FILE} not found"
-    return f"LPIPS on: {backbone} and {_linear_weights_path()}"
+        return f"LPIPS off: backbone weights {shown(backbone)} not found (nothing is downloaded)"
+    linear = _linear_weights_path()
+    if linear is None:
+        return f"LPIPS off: linear weights {shown(hub_checkpoints() / LINEAR_FILE)} not found"
+    return f"LPIPS on: {shown(backbone)} and {shown(linear)}"

@@ -10,15 +10,17 @@ from __future__ import annotations
 import logging
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 
 from pghm.body import load_body
 from pghm.errors import PghmError
-from pghm.io.avatar import Avatar, save_avatar
+from pghm.io.avatar import Avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig, subject_geometry
 from pghm.model.geometry import SubjectGeometry
 from pghm.train import distributed
+from pghm.train.background import SILHOUETTE_WEIGHT, TRAINING_BACKGROUND
 from pghm.train.data import PoseCorrections, TrainingData
 from pghm.train.loop import (
     AvatarObjective,
@@ -29,9 +31,13 @@ from pghm.train.loop import (
     restore,
     run_stage,
 )
+from pghm.train.losses import LossWeights
 from pghm.train.lpips import load_lpips, lpips_status
 from pghm.train.optim import LazyAdam
 from pghm.uv.atlas import build_atlas
+
+if TYPE_CHECKING:
+    from pghm.train.fit import FitConfig
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +47,14 @@ class PriorConfig:
     """Prior training; defaults sized for a 2-core CPU."""
 
     model: ModelConfig = field(default_factory=ModelConfig)
-    loop: LoopConfig = field(default_factory=lambda: LoopConfig(steps=9000, images_per_shard=4))
+    loop: LoopConfig = field(
+        default_factory=lambda: LoopConfig(
+            steps=9000,
+            images_per_shard=4,
+            loss=LossWeights(silhouette=SILHOUETTE_WEIGHT),
+            background=TRAINING_BACKGROUND,
+        )
+    )
     network_lr: float = 1e-3
     """Adam learning rate of the Feature Decoder and the U-Net."""
     latent_lr: float = 1e-2
@@ -78,15 +91,22 @@ class GeometryCache:
         return self._cache[identity]
 
 
+def config_record(config: PriorConfig | FitConfig) -> dict:
+    """A training config as metadata: its fields, the user's body model file by name only."""
+    record = asdict(config)
+    if config.body_model_path is not None:
+        record["body_model_path"] = recorded_path(config.body_model_path)
+    return record
+
+
 def lpips_for(enabled: bool):
-    """(the LPIPS network or None, a status line for the metadata)."""
+    """(the LPIPS network or None, a status line for the metadata, naming files without their directories)."""
     if not enabled:
         return None, "LPIPS off: disabled by configuration"
     network = load_lpips()
-    status = lpips_status()
     if network is None:
-        log.warning("%s; the LPIPS loss term is dropped", status)
-    return network, status
+        log.warning("%s; the LPIPS loss term is dropped", lpips_status())
+    return network, lpips_status(directories=False)
 
 
 def train_prior(
@@ -136,7 +156,7 @@ def train_prior(
         shapes=shapes,
         metadata={
             "command": "train-prior",
-            "data": str(Path(data_dir).resolve()),
+            "data": recorded_path(data_dir),
             "identities": data.num_identities,
             "training_images": int(sum(len(i) for i in data.images)),
             "steps": state.step,
@@ -145,7 +165,7 @@ def train_prior(
             "skipped_images": [list(b) for b in state.bad_images],
             "lpips": lpips_line,
             "final": state.history[-1] if state.history else {},
-            "config": asdict(config),
+            "config": config_record(config),
             "processes": distributed.world_size(),
         },
     )
