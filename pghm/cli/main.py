@@ -13,7 +13,7 @@ import sys
 
 from pghm.errors import EXIT_USER_ERROR, PghmError
 
-SUBCOMMAND_MODULES = ("synth", "data", "motion", "train", "export", "bench", "render")
+SUBCOMMAND_MODULES = ("synth", "capture", "data", "motion", "train", "export", "bench", "render")
 """Modules under ``pghm.cli`` that register a subcommand, in ``pghm --help`` order."""
 
 

@@ -1,0 +1,115 @@
+"""The configuration of ``pghm capture``: one dataclass, every option of the command.
+
+The body fit's own settings (:class:`pghm.capture.bodyfit.BodyFitConfig`) nest inside as
+``body``; ``None`` takes its defaults. The body fit is imported only when the pipeline
+reaches it, so that reading the video and finding the person (and every bad-input error
+they raise) do not wait for torch and the body model to load.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from pghm.errors import PghmError
+
+if TYPE_CHECKING:
+    from pghm.capture.bodyfit import BodyFitConfig
+
+MIN_FRAMES = 8
+"""Fewest frames with the person found that make a subject: with the default
+``test_every`` of 8, seven training frames and one test frame."""
+
+DEFAULT_SIZE = 512
+"""Longest side of the subject images, pixels (what ``pghm fit`` trains at on 2 cores)."""
+
+DEFAULT_TEST_EVERY = 8
+"""Every this-many-th kept frame goes to the test split."""
+
+DEFAULT_CROP_MARGIN = 0.1
+"""Margin added on each side of the region the person occupies, as a fraction of that
+region's longest side (room for a hand the segmentation clipped)."""
+
+
+@dataclass
+class CaptureConfig:
+    """What ``pghm capture`` does with a video. Defaults: a phone video, camera unknown."""
+
+    every: int = 1
+    """Keep every this-many-th frame of the video (source frame numbers 0, N, 2N, ...)."""
+
+    max_frames: int | None = None
+    """Stop after this many kept frames (None: the whole video)."""
+
+    size: int = DEFAULT_SIZE
+    """Longest side of the subject images after the crop, pixels. Frames are never
+    enlarged: a crop smaller than this keeps its own size."""
+
+    fov_deg: float | None = None
+    """Field of view along the video frame's longest side, degrees, when known (phones'
+    main cameras: about 65-70). None with ``focal_px`` None: the body fit estimates the
+    focal length (falling back to its named default field of view if it cannot)."""
+
+    focal_px: float | None = None
+    """Focal length in pixels of the video's frames at their full resolution (upright),
+    when known; exclusive with ``fov_deg``."""
+
+    test_every: int = DEFAULT_TEST_EVERY
+    """Every this-many-th kept frame (the 8th, 16th, ... with 8) is in the test split."""
+
+    crop_margin: float = DEFAULT_CROP_MARGIN
+    """See :data:`DEFAULT_CROP_MARGIN`."""
+
+    min_frames: int = MIN_FRAMES
+    """See :data:`MIN_FRAMES`."""
+
+    progress: bool = True
+    """A tqdm bar per stage on stderr."""
+
+    body: BodyFitConfig | None = None
+    """The body fit's settings (None: its defaults)."""
+
+    def validate(self) -> CaptureConfig:
+        """Raise :class:`PghmError` naming the first option out of range; return self."""
+        if self.every < 1:
+            raise PghmError(f"--every must be >= 1, got {self.every}")
+        if self.max_frames is not None and self.max_frames < 1:
+            raise PghmError(f"--max-frames must be >= 1, got {self.max_frames}")
+        if self.size < 16:
+            raise PghmError(f"--size must be >= 16 pixels, got {self.size}")
+        if self.fov_deg is not None and self.focal_px is not None:
+            raise PghmError("give --fov or --focal, not both")
+        if self.fov_deg is not None and not 1.0 <= self.fov_deg <= 179.0:
+            raise PghmError(f"--fov must be in 1..179 degrees, got {self.fov_deg}")
+        if self.focal_px is not None and not (math.isfinite(self.focal_px) and self.focal_px > 0):
+            raise PghmError(f"--focal must be a positive number of pixels, got {self.focal_px}")
+        if self.test_every < 2:
+            raise PghmError(f"--test-every must be >= 2 (1 would leave no training frame), got {self.test_every}")
+        if not 0.0 <= self.crop_margin <= 1.0:
+            raise PghmError(f"crop_margin must be in [0, 1], got {self.crop_margin}")
+        if self.min_frames < 2:
+            raise PghmError(f"min_frames must be >= 2, got {self.min_frames}")
+        return self
+
+    def source_intrinsics(self, width: int, height: int) -> np.ndarray | None:
+        """(3, 3) K in pixels of the full upright video frame (W x H), or None when unknown.
+
+        fx = fy = ``focal_px``, or (L / 2) / tan(fov / 2) with L = max(W, H); the principal
+        point at the frame centre (W / 2, H / 2), pixel centres at half-integers.
+        """
+        if self.focal_px is not None:
+            focal = self.focal_px
+        elif self.fov_deg is not None:
+            focal = 0.5 * max(width, height) / math.tan(math.radians(self.fov_deg) / 2)
+        else:
+            return None
+        return np.array([[focal, 0.0, width / 2], [0.0, focal, height / 2], [0.0, 0.0, 1.0]])
+
+    def to_json(self) -> dict:
+        """The options, for meta.json (the body fit's settings as it gives them, or null)."""
+        values = {key: value for key, value in asdict(self).items() if key not in ("body", "progress")}
+        values["body"] = asdict(self.body) if self.body is not None else None
+        return values

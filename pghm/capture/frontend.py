@@ -1,0 +1,337 @@
+"""The front end: find the person in each frame, follow them through the video, measure them.
+
+Per frame it gives the person's mask, MediaPipe's 33 pose landmarks in pixels with their
+confidences, and its 33 metric "world" landmarks, all from MediaPipe's legacy
+``solutions.pose.Pose(model_complexity=1, enable_segmentation=True)`` (mediapipe==0.10.14
+ships the detector, landmark and segmentation models inside its wheel: nothing is
+downloaded).
+
+Tracking. Over a photograph of a room MediaPipe, run on the whole frame, can miss the
+person or lock onto a person printed in the background. So each frame is first searched in
+a square around the previous frame's box (the person is then large in MediaPipe's input),
+and a detection only continues the track when it is consistent with it: its centre within
+:data:`MAX_SHIFT` box diagonals of the previous box's and its size within a factor
+:data:`MAX_SCALE_CHANGE`, both loosened for each frame the person has been lost. When the
+square fails, the whole frame is searched. With no track (the first frame, or after
+:data:`LOST_RESET` frames without the person), the whole frame and three square windows
+along its long side are searched and the largest person found starts the track: the
+person filmed is the one the camera frames. Every call runs MediaPipe in static-image mode
+(detector then landmarks), because the crops move from frame to frame and its own video
+tracking assumes a fixed image.
+
+Masks: MediaPipe's segmentation (thresholded at :data:`MASK_THRESHOLD`) can include other
+people or clutter beside the person; only its connected components that hold one of the
+person's visible landmarks are kept.
+
+Two passes use this (:mod:`pghm.capture.pipeline`): :func:`track_person` on frames scaled
+small (boxes only), then :func:`observe` on the subject's cropped images, seeded with each
+frame's box, for the masks and landmarks at the subject's resolution.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import warnings
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from pghm.errors import PghmError
+
+NUM_LANDMARKS = 33
+"""MediaPipe's pose landmarks (``PoseLandmark`` numbering 0..32)."""
+
+MODEL_COMPLEXITY = 1
+"""MediaPipe's "full" landmark model, the one the 0.10.14 wheel ships."""
+
+MIN_DETECTION_CONFIDENCE = 0.5
+"""MediaPipe's person-detector and landmark-presence thresholds (its defaults)."""
+
+MASK_THRESHOLD = 0.5
+"""Segmentation probability above which a pixel is the person's."""
+
+VISIBLE = 0.5
+"""A landmark with visibility at least this is visible (it anchors mask components and boxes)."""
+
+ROI_GROWTH = 1.6
+"""The square searched around the previous box has this times the box's longest side."""
+
+MAX_SHIFT = 0.5
+"""A detection continues the track if its box centre moved at most this many previous-box diagonals..."""
+
+MAX_SCALE_CHANGE = 1.6
+"""...and its box diagonal changed by at most this factor (per frame; both loosen with frames lost)."""
+
+LOST_RESET = 30
+"""Frames without the person after which the track is dropped and the largest person found starts a new one."""
+
+INSTALL_HINT = "pip install 'pghm[capture]' (make setup installs it)"
+
+Box = np.ndarray
+"""(4,) float (x0, y0, x1, y1), pixels (docs/data.md: pixel centres at half-integers)."""
+
+
+@dataclass
+class Observations:
+    """What the front end measured, for the kept frames only (F frames, subject-image pixels).
+
+    Attributes:
+        frame_index: (F,) int32 source video frame number of each kept frame.
+        image_size: (H, W) of the subject images (after resize and crop).
+        K: (3, 3) intrinsics in subject-image pixels if known (--fov / --focal), else None.
+        landmarks_2d: (F, 33, 2) MediaPipe pose landmarks, pixels of the subject image.
+        confidence: (F, 33) in [0, 1], MediaPipe visibility (times presence where given).
+        landmarks_3d: (F, 33, 3) MediaPipe world landmarks: metres, origin between the hips,
+            MediaPipe's axes (x right, y down, z away from the camera), camera-aligned.
+        masks: (F, H, W) bool, the person's mask.
+    """
+
+    frame_index: np.ndarray
+    image_size: tuple[int, int]
+    K: np.ndarray | None
+    landmarks_2d: np.ndarray
+    confidence: np.ndarray
+    landmarks_3d: np.ndarray
+    masks: np.ndarray
+
+
+@dataclass
+class Detection:
+    """The person found in one image (H x W).
+
+    Attributes:
+        landmarks_2d: (33, 2) pixels of the image.
+        confidence: (33,) visibility (times presence where MediaPipe gives it).
+        landmarks_3d: (33, 3) world landmarks, metres.
+        mask: (H, W) bool.
+        box: (4,) bounding box of the mask and the visible landmarks, clipped to the image.
+    """
+
+    landmarks_2d: np.ndarray
+    confidence: np.ndarray
+    landmarks_3d: np.ndarray
+    mask: np.ndarray
+    box: Box
+
+
+@contextlib.contextmanager
+def native_logs_silenced() -> Iterator[None]:
+    """Send file descriptor 2 to /dev/null while Python's ``sys.stderr`` keeps writing to the terminal.
+
+    MediaPipe's C++ side (absl, TFLite) prints "INFO: Created TensorFlow Lite XNNPACK
+    delegate" and feedback-tensor warnings straight to descriptor 2, from its graph threads,
+    at moments that do not follow the Python calls; its errors still arrive as Python
+    exceptions. ``sys.stderr`` (progress bars, warnings, the CLI's messages) moves to a
+    duplicate of the original descriptor for the duration, when it was writing to it.
+    """
+    sys.stderr.flush()
+    saved = os.dup(2)
+    python_stderr = sys.stderr
+    try:
+        on_descriptor = python_stderr.fileno() == 2
+    except (AttributeError, OSError, ValueError):  # a captured or replaced sys.stderr
+        on_descriptor = False
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+        if on_descriptor:
+            sys.stderr = open(os.dup(saved), "w", buffering=1, encoding=python_stderr.encoding, errors="backslashreplace")
+        yield
+    finally:
+        if sys.stderr is not python_stderr:
+            sys.stderr.close()
+            sys.stderr = python_stderr
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+class PoseEstimator:
+    """MediaPipe Pose (legacy solution API, static-image mode) on a square of an image."""
+
+    def __init__(self) -> None:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # protobuf deprecation warnings at import
+                from mediapipe.python.solutions import pose
+        except ImportError:
+            raise PghmError(f"pghm capture needs mediapipe: {INSTALL_HINT}") from None
+        self._pose = pose.Pose(
+            static_image_mode=True,
+            model_complexity=MODEL_COMPLEXITY,
+            enable_segmentation=True,
+            min_detection_confidence=MIN_DETECTION_CONFIDENCE,
+            min_tracking_confidence=MIN_DETECTION_CONFIDENCE,
+        )
+
+    def close(self) -> None:
+        self._pose.close()
+
+    def __enter__(self) -> PoseEstimator:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __call__(self, image: np.ndarray, roi: Box | None = None) -> Detection | None:
+        """The person in ``image`` (H, W, 3) uint8, searched in ``roi`` (None: everywhere); None if not found."""
+        height, width = image.shape[:2]
+        x0, y0, x1, y1 = _pixel_rect(roi, width, height) if roi is not None else (0, 0, width, height)
+        if x1 - x0 < 2 or y1 - y0 < 2:
+            return None
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result = self._pose.process(np.ascontiguousarray(image[y0:y1, x0:x1]))
+        if result.pose_landmarks is None or result.segmentation_mask is None:
+            return None
+        points = result.pose_landmarks.landmark
+        normalised = np.array([[p.x, p.y] for p in points], dtype=np.float64)
+        landmarks_2d = normalised * [x1 - x0, y1 - y0] + [x0, y0]
+        visibility = np.array([p.visibility for p in points], dtype=np.float32)
+        presence = np.array([p.presence for p in points], dtype=np.float32)
+        # The legacy graph leaves presence at 0 (unset); use it only where it is given.
+        confidence = visibility * presence if presence.any() else visibility
+        world = np.array([[p.x, p.y, p.z] for p in result.pose_world_landmarks.landmark], dtype=np.float32)
+        mask = np.zeros((height, width), dtype=bool)
+        mask[y0:y1, x0:x1] = person_components(result.segmentation_mask >= MASK_THRESHOLD, landmarks_2d - [x0, y0], confidence)
+        box = detection_box(mask, landmarks_2d, confidence)
+        if box is None:
+            return None
+        return Detection(landmarks_2d.astype(np.float32), np.clip(confidence, 0, 1), world, mask, box)
+
+
+def person_components(mask: np.ndarray, landmarks_2d: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+    """The connected components (8-neighbour) of ``mask`` (H, W) bool that hold a visible landmark.
+
+    Landmarks are (33, 2) pixels of the mask's image; a landmark lands in the pixel that
+    contains it. With no visible landmark on the mask, its largest component is kept.
+    """
+    import cv2
+
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    if count <= 2:  # background plus at most one component
+        return mask
+    height, width = mask.shape
+    cols, rows = np.floor(landmarks_2d[:, 0]).astype(int), np.floor(landmarks_2d[:, 1]).astype(int)
+    inside = (confidence >= VISIBLE) & (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)
+    touched = np.unique(labels[rows[inside], cols[inside]])
+    touched = touched[touched > 0]
+    if len(touched) == 0:
+        touched = np.array([1 + np.argmax(stats[1:, cv2.CC_STAT_AREA])])
+    return np.isin(labels, touched)
+
+
+def detection_box(mask: np.ndarray, landmarks_2d: np.ndarray, confidence: np.ndarray) -> Box | None:
+    """(4,) box around the mask's pixels and the visible landmarks, clipped to the image; None on an empty mask."""
+    rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
+    if len(rows) == 0:
+        return None
+    height, width = mask.shape
+    x0, x1, y0, y1 = cols[0], cols[-1] + 1.0, rows[0], rows[-1] + 1.0
+    visible = landmarks_2d[confidence >= VISIBLE]
+    if len(visible):
+        x0, y0 = min(x0, visible[:, 0].min()), min(y0, visible[:, 1].min())
+        x1, y1 = max(x1, visible[:, 0].max()), max(y1, visible[:, 1].max())
+    return np.array([max(0.0, x0), max(0.0, y0), min(width, x1), min(height, y1)], dtype=np.float64)
+
+
+def _pixel_rect(box: Box, width: int, height: int) -> tuple[int, int, int, int]:
+    """Whole pixels (x0, y0, x1, y1) covering ``box``, clipped to the image."""
+    x0, y0 = max(0, int(np.floor(box[0]))), max(0, int(np.floor(box[1])))
+    return x0, y0, min(width, int(np.ceil(box[2]))), min(height, int(np.ceil(box[3])))
+
+
+def search_square(box: Box, growth: float = ROI_GROWTH) -> Box:
+    """The square centred on ``box`` with ``growth`` times its longest side (not clipped)."""
+    centre = (box[:2] + box[2:]) / 2
+    half = growth * max(box[2] - box[0], box[3] - box[1]) / 2
+    return np.concatenate([centre - half, centre + half])
+
+
+def consistent(box: Box, previous: Box, frames_lost: int) -> bool:
+    """Whether ``box`` continues a track last seen at ``previous``, ``frames_lost`` frames ago.
+
+    |c - c_prev| <= MAX_SHIFT d_prev (1 + lost) and 1 / s <= d / d_prev <= s with
+    s = MAX_SCALE_CHANGE ** (1 + lost), c the box centre, d its diagonal.
+    """
+    diagonal, previous_diagonal = np.hypot(*(box[2:] - box[:2])), np.hypot(*(previous[2:] - previous[:2]))
+    shift = np.hypot(*((box[:2] + box[2:]) / 2 - (previous[:2] + previous[2:]) / 2))
+    slack = 1 + frames_lost
+    ratio = diagonal / max(previous_diagonal, 1e-9)
+    return bool(shift <= MAX_SHIFT * previous_diagonal * slack and MAX_SCALE_CHANGE ** (-slack) <= ratio <= MAX_SCALE_CHANGE**slack)
+
+
+def _windows(width: int, height: int) -> list[Box]:
+    """Three squares of side min(W, H) at the start, middle and end of the frame's long side."""
+    side = min(width, height)
+    starts = np.linspace(0, max(width, height) - side, 3)
+    if width >= height:
+        return [np.array([s, 0, s + side, side], dtype=np.float64) for s in starts]
+    return [np.array([0, s, side, s + side], dtype=np.float64) for s in starts]
+
+
+def _area(box: Box) -> float:
+    return float((box[2] - box[0]) * (box[3] - box[1]))
+
+
+def find_person(estimator: PoseEstimator, image: np.ndarray, previous: Box | None, frames_lost: int) -> Detection | None:
+    """The tracked person in ``image`` given the last box seen ``frames_lost`` frames ago (None: no track).
+
+    With a track: the square around ``previous``, then the whole frame; a detection counts
+    only if :func:`consistent` with the track. Without: the whole frame and three windows,
+    the largest person found (see the module docstring).
+    """
+    height, width = image.shape[:2]
+    if previous is not None:
+        for roi in (search_square(previous), None):
+            found = estimator(image, roi)
+            if found is not None and consistent(found.box, previous, frames_lost):
+                return found
+        return None
+    candidates = [estimator(image, roi) for roi in (None, *_windows(width, height))]
+    candidates = [c for c in candidates if c is not None]
+    return max(candidates, key=lambda c: _area(c.box)) if candidates else None
+
+
+@dataclass
+class Track:
+    """The person's box in each frame where they were found (pass 1).
+
+    Attributes:
+        frame_index: (F,) int source frame numbers where the person was found.
+        boxes: (F, 4) their boxes, pixels of the frames searched.
+        lost: source frame numbers read where the person was not found.
+    """
+
+    frame_index: np.ndarray
+    boxes: np.ndarray
+    lost: list[int]
+
+    @property
+    def frames_read(self) -> int:
+        return len(self.frame_index) + len(self.lost)
+
+
+def track_person(
+    frames: Iterable[tuple[int, np.ndarray]], estimator: PoseEstimator, on_frame: Callable[[], None] | None = None
+) -> Track:
+    """Follow one person through ``frames`` ((source frame number, (H, W, 3) uint8) pairs)."""
+    indices, boxes, lost = [], [], []
+    previous, frames_lost = None, 0
+    for index, image in frames:
+        found = find_person(estimator, image, previous, frames_lost)
+        if found is None:
+            lost.append(int(index))
+            frames_lost += 1
+            if frames_lost >= LOST_RESET:
+                previous, frames_lost = None, 0
+        else:
+            indices.append(int(index))
+            boxes.append(found.box)
+            previous, frames_lost = found.box, 0
+        if on_frame is not None:
+            on_frame()
+    return Track(np.array(indices, dtype=np.int64), np.array(boxes, dtype=np.float64).reshape(-1, 4), lost)
+

@@ -1,0 +1,284 @@
+"""``capture(input, out, config)``: a video (or a folder of images) becomes a subject folder.
+
+    reader ──► pass 1: track the person on frames scaled to 512 px (boxes only)
+           ──► crop: the region the person occupies over the video, intrinsics adjusted
+           ──► pass 2: the cropped frames at the subject's size: mask, landmarks, images written
+           ──► body fit (pghm.capture.bodyfit): shape, per-frame pose, camera
+           ──► cameras.npz, poses.npz, splits.json, meta.json (docs/data.md)
+
+Both passes stream: ffmpeg decodes, crops and scales in C, Python holds one frame at a
+time; the masks the body fit needs go to a memory-mapped file. The subject is built in a
+hidden temporary folder beside ``out`` and renamed into place at the end: an error or a
+Ctrl-C leaves nothing behind.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from pghm.capture.config import CaptureConfig
+from pghm.capture.crop import Region, crop_intrinsics, person_region, to_region
+from pghm.capture.frontend import (
+    NUM_LANDMARKS,
+    Observations,
+    PoseEstimator,
+    Track,
+    find_person,
+    native_logs_silenced,
+    track_person,
+)
+from pghm.capture.video import ImageFolder, VideoFile, open_source, scaled_size
+from pghm.data.subject import SubjectArrays, write_image, write_subject
+from pghm.errors import PghmError
+
+TRACKING_SIZE = 512
+"""Longest side of the frames the person is tracked on (pass 1), pixels."""
+
+MASKS_FILE = "masks.npy"
+"""The memory-mapped (F, H, W) masks, in the temporary folder only."""
+
+SHOWN_FRAMES = 12
+"""Frame numbers listed in a message before "and N more"."""
+
+WHITE = 255
+
+
+def _frame_list(frames: list[int]) -> str:
+    shown = ", ".join(str(f) for f in frames[:SHOWN_FRAMES])
+    return shown + (f" and {len(frames) - SHOWN_FRAMES} more" if len(frames) > SHOWN_FRAMES else "")
+
+
+def _warn(message: str) -> None:
+    print(f"pghm: warning: {message}", file=sys.stderr)
+
+
+def test_split(count: int, test_every: int) -> tuple[list[int], list[int]]:
+    """(train, test) image indices: images test_every - 1, 2 test_every - 1, ... are the test split."""
+    test = [i for i in range(count) if (i + 1) % test_every == 0]
+    return [i for i in range(count) if (i + 1) % test_every != 0], test
+
+
+def _require_frames(name: str, found: int, read: int, lost: list[int], config: CaptureConfig) -> None:
+    """PghmError naming the file (and the frames lost) when fewer than ``config.min_frames`` are usable."""
+    if read == 0:
+        raise PghmError(f"{name}: no frame could be read")
+    if found == 0:
+        raise PghmError(f"{name}: no person found in any of the {read} frame(s) read")
+    if found < config.min_frames:
+        where = f" (not found in frames {_frame_list(lost)})" if lost else ""
+        raise PghmError(
+            f"{name}: the person was found in {found} of {read} frame(s) read{where}; "
+            f"capture needs at least {config.min_frames} (a longer video, or a smaller --every)"
+        )
+
+
+def _track(source: VideoFile | ImageFolder, estimator: PoseEstimator, config: CaptureConfig) -> Track:
+    """Pass 1: the person's box in each frame, in pixels of the full upright frame."""
+    full = Region.full(source.width, source.height)
+    size = scaled_size(full, TRACKING_SIZE)
+    total = source.frame_estimate and -(-source.frame_estimate // config.every)
+    if config.max_frames is not None:
+        total = min(total or config.max_frames, config.max_frames)
+    frames = source.frames(full, size, config.every, config.max_frames)
+    with tqdm(total=total, desc="capture: find person", unit="frame", disable=not config.progress, file=sys.stderr) as bar:
+        track = track_person(frames, estimator, on_frame=bar.update)
+    scale = np.array([source.width / size[1], source.height / size[0]] * 2)
+    track.boxes = track.boxes * scale
+    return track
+
+
+def _observe(
+    source: VideoFile | ImageFolder,
+    estimator: PoseEstimator,
+    track: Track,
+    region: Region,
+    out_size: tuple[int, int],
+    K: np.ndarray | None,
+    folder: Path,
+    config: CaptureConfig,
+) -> tuple[Observations, list[int]]:
+    """Pass 2: masks and landmarks on the cropped frames; images and masks written to ``folder``.
+
+    Returns the observations of the frames where the person was found again and the source
+    frame numbers where not.
+    """
+    boxes = {int(i): box for i, box in zip(track.frame_index, track.boxes)}
+    count = len(boxes)
+    masks = np.lib.format.open_memmap(folder / MASKS_FILE, mode="w+", dtype=bool, shape=(count, *out_size))
+    landmarks_2d = np.zeros((count, NUM_LANDMARKS, 2), np.float32)
+    confidence = np.zeros((count, NUM_LANDMARKS), np.float32)
+    landmarks_3d = np.zeros((count, NUM_LANDMARKS, 3), np.float32)
+    kept, lost = [], []
+    last = int(track.frame_index[-1])
+    frames = source.frames(region, out_size, config.every, config.max_frames)
+    with tqdm(total=count, desc="capture: masks, landmarks", unit="frame", disable=not config.progress, file=sys.stderr) as bar:
+        for index, image in frames:
+            if index in boxes:
+                box = to_region(boxes[index].reshape(2, 2), region, out_size).reshape(4)
+                found = find_person(estimator, image, box, frames_lost=0)
+                if found is None:
+                    lost.append(index)
+                else:
+                    k = len(kept)
+                    masks[k], landmarks_2d[k], confidence[k], landmarks_3d[k] = (
+                        found.mask,
+                        found.landmarks_2d,
+                        found.confidence,
+                        found.landmarks_3d,
+                    )
+                    composite = np.where(found.mask[..., None], image, np.uint8(WHITE))
+                    write_image(folder, k, composite, found.mask.astype(np.uint8) * WHITE)
+                    kept.append(index)
+                bar.update()
+            if index >= last:
+                break
+    n = len(kept)
+    observations = Observations(
+        frame_index=np.array(kept, dtype=np.int32),
+        image_size=out_size,
+        K=None if K is None else K.astype(np.float32),
+        landmarks_2d=landmarks_2d[:n],
+        confidence=confidence[:n],
+        landmarks_3d=landmarks_3d[:n],
+        masks=masks[:n],
+    )
+    return observations, lost
+
+
+@dataclass
+class FrontEnd:
+    """What the front end found in a video, before the body fit.
+
+    Attributes:
+        observations: the kept frames' masks and landmarks (masks memory-mapped in the folder).
+        source_name: the input's file (or folder) name.
+        source_size: (W, H) of its upright frames at full resolution.
+        frames_read: frames read (after ``every`` and ``max_frames``).
+        dropped: source frame numbers where the person was not found.
+        region: the crop, pixels of the full upright frame.
+    """
+
+    observations: Observations
+    source_name: str
+    source_size: tuple[int, int]
+    frames_read: int
+    dropped: list[int]
+    region: Region
+
+
+def observe_video(
+    input: str | os.PathLike, folder: Path, config: CaptureConfig, on_warning: Callable[[str], None] = _warn
+) -> FrontEnd:
+    """Passes 1 and 2: find and follow the person, crop, and write the subject's images and masks into ``folder``.
+
+    Raises :class:`PghmError` for an unreadable input or too few frames with the person;
+    warns once (``on_warning``) listing the frames dropped.
+    """
+    source = open_source(input)
+    with native_logs_silenced(), PoseEstimator() as estimator:
+        track = _track(source, estimator, config)
+        _require_frames(source.name, len(track.frame_index), track.frames_read, track.lost, config)
+        region = person_region(track.boxes, source.width, source.height, config.crop_margin)
+        out_size = scaled_size(region, config.size)
+        K = config.source_intrinsics(source.width, source.height)
+        K = None if K is None else crop_intrinsics(K, region, out_size)
+        observations, lost_again = _observe(source, estimator, track, region, out_size, K, folder, config)
+    dropped = sorted(track.lost + lost_again)
+    _require_frames(source.name, len(observations.frame_index), track.frames_read, dropped, config)
+    if dropped:
+        on_warning(
+            f"{source.name}: person not found in {len(dropped)} of {track.frames_read} frames "
+            f"({_frame_list(dropped)}); those frames are dropped"
+        )
+    return FrontEnd(observations, source.name, (source.width, source.height), track.frames_read, dropped, region)
+
+
+def capture(
+    input: str | os.PathLike,
+    out: str | os.PathLike,
+    config: CaptureConfig | None = None,
+    on_warning: Callable[[str], None] = _warn,
+) -> Path:
+    """Turn the video (or image folder) ``input`` into the new subject folder ``out``; return ``out``.
+
+    Frames where the person is not found are dropped with one warning (``on_warning``)
+    listing them. Raises :class:`PghmError` (one line naming the file and frames) for an
+    unreadable or truncated video, no person, fewer than ``config.min_frames`` usable
+    frames, or an existing ``out``; ``out`` is then not created.
+    """
+    config = (config or CaptureConfig()).validate()
+    out = Path(out)
+    if out.exists():
+        raise PghmError(f"{out} already exists; choose a new output folder")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    folder = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
+    try:
+        front = observe_video(input, folder, config, on_warning)
+        _write(folder, config, front)
+        os.rename(folder, out)
+    except BaseException:
+        shutil.rmtree(folder, ignore_errors=True)
+        raise
+    return out
+
+
+def _write(folder: Path, config: CaptureConfig, front: FrontEnd) -> None:
+    """Fit the body and write the subject's arrays and meta.json into ``folder`` (images are already there)."""
+    import pghm
+    from pghm.body import load_body
+    from pghm.capture.bodyfit import BodyFitConfig, fit_body
+
+    observations = front.observations
+    fit = fit_body(observations, config.body or BodyFitConfig())
+    n = len(observations.frame_index)
+    train, test = test_split(n, config.test_every)
+    height, width = observations.image_size
+    arrays = SubjectArrays(
+        K=np.repeat(fit.K[None], n, axis=0),
+        world_to_camera=np.repeat(fit.world_to_camera[None], n, axis=0),
+        height=np.full(n, height),
+        width=np.full(n, width),
+        rotations=fit.rotations,
+        translation=fit.translation,
+        shape=fit.shape,
+        body="anny",
+        bone_names=list(load_body("anny").bone_names),
+        splits={"train": train, "test": test},
+        frame_index=observations.frame_index,
+        view_index=np.zeros(n, dtype=np.int32),
+    )
+    (folder / MASKS_FILE).unlink()
+    meta = {
+        "source": "pghm capture",
+        "input": front.source_name,
+        "options": config.to_json(),
+        "pghm_version": pghm.__version__,
+        "mediapipe_version": _version("mediapipe"),
+        "counts": {
+            "frames_read": front.frames_read,
+            "person_found": front.frames_read - len(front.dropped),
+            "dropped": len(front.dropped),
+            "dropped_frames": front.dropped,
+        },
+        "crop": {"source_width": front.source_size[0], "source_height": front.source_size[1], **front.region.to_json()},
+        "body_fit_residuals": {key: float(value) for key, value in fit.residuals.items()},
+    }
+    write_subject(folder, arrays, meta)
+
+
+def _version(package: str) -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(package)
+    except PackageNotFoundError:
+        return "unknown"

@@ -1,0 +1,266 @@
+"""Streaming frame readers: a video file (through imageio-ffmpeg's ffmpeg) or a folder of images.
+
+Both read one frame at a time, already cropped and scaled to the size asked for, so memory
+holds one small frame whatever the input's length or resolution: ffmpeg decodes a 4K video
+in C and hands Python frames after its ``crop`` and ``scale`` filters; JPEG images are
+decoded at a reduced size (``Image.draft``) before the crop.
+
+Orientation: ffmpeg applies a video's rotation (the display matrix phones write for
+portrait videos) before the filters, and images are turned by their EXIF orientation, so
+frames come out upright, and every size and pixel coordinate here is of the upright frame.
+
+Frame numbers are source frame numbers: with ``every`` N, the frames read are 0, N, 2N, ...
+of the video (or of the folder's images sorted by name).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import tempfile
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, ImageOps
+
+from pghm.capture.crop import Region
+from pghm.errors import PghmError
+from pghm.io.read_errors import IMAGE_READ_ERRORS
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff")
+"""Files of an image folder that are read as frames (case-insensitive)."""
+
+PROBE_SECONDS = 60.0
+"""How long probing a video (decoding its first frame) may take before it counts as unreadable."""
+
+TRUNCATION_SIGNS = ("partial file", "Invalid data found when processing input")
+"""ffmpeg log lines (at level ``error``) that mean the file ended or broke mid-stream; a
+clean decode of an intact file logs nothing at that level."""
+
+_OUTPUT_SIZE = re.compile(r", (\d+)x(\d+)[ ,]")
+_FPS = re.compile(r" (\d+(?:\.\d+)?) fps")
+_DURATION = re.compile(r"Duration: (\d+):(\d\d):(\d\d(?:\.\d+)?)")
+
+
+def scaled_size(region: Region, longest: int) -> tuple[int, int]:
+    """(H, W) of ``region`` scaled so its longest side is ``longest`` pixels, never enlarged.
+
+    s = min(1, longest / max(w, h)); each side rounds to the nearest pixel (at least 1), so
+    the two axes' scales differ by under half a pixel: :func:`pghm.capture.crop.crop_intrinsics`
+    uses each axis' exact ratio.
+    """
+    scale = min(1.0, longest / max(region.width, region.height))
+    return max(1, round(region.height * scale)), max(1, round(region.width * scale))
+
+
+def _ffmpeg() -> str:
+    import imageio_ffmpeg
+
+    return imageio_ffmpeg.get_ffmpeg_exe()
+
+
+def _last_line(text: str) -> str:
+    lines = [line.strip() for line in text.strip().splitlines() if line.strip()]
+    return lines[-1] if lines else "no output"
+
+
+@dataclass(frozen=True)
+class VideoFile:
+    """A video file. ``width`` x ``height`` is its upright frame size at full resolution.
+
+    Attributes:
+        path: the file.
+        width: W, upright.
+        height: H, upright.
+        frame_estimate: frames in the video from its duration and frame rate (for progress
+            bars only; containers do not always say), or None.
+    """
+
+    path: Path
+    width: int
+    height: int
+    frame_estimate: int | None
+
+    @classmethod
+    def open(cls, path: Path) -> VideoFile:
+        """Probe ``path`` by decoding its first frame; :class:`PghmError` if it is not a readable video."""
+        command = [_ffmpeg(), "-hide_banner", "-nostdin", "-i", str(path), "-map", "0:v:0"]
+        command += ["-frames:v", "1", "-f", "null", "-"]
+        try:
+            result = subprocess.run(command, capture_output=True, text=True, errors="replace", timeout=PROBE_SECONDS)
+        except subprocess.TimeoutExpired:
+            raise PghmError(f"{path.name}: not a readable video (ffmpeg took over {PROBE_SECONDS:.0f} s)") from None
+        log = result.stderr
+        if "matches no streams" in log:
+            raise PghmError(f"{path.name}: has no video stream")
+        if result.returncode != 0:
+            message = _last_line(log).replace(str(path), path.name)
+            raise PghmError(f"{path.name}: not a readable video (ffmpeg: {message})")
+        # The output stream's size is after ffmpeg's automatic rotation: the upright frame.
+        output = log.split("Output #0", 1)[-1]
+        sizes = [_OUTPUT_SIZE.search(line) for line in output.splitlines() if " Video: " in line]
+        if not sizes or sizes[0] is None:
+            raise PghmError(f"{path.name}: not a readable video (ffmpeg reported no frame size)")
+        width, height = int(sizes[0].group(1)), int(sizes[0].group(2))
+        fps, duration = _FPS.search(log), _DURATION.search(log)
+        estimate = None
+        if fps and duration:
+            hours, minutes, seconds = duration.groups()
+            estimate = round((int(hours) * 3600 + int(minutes) * 60 + float(seconds)) * float(fps.group(1)))
+        return cls(path, width, height, estimate)
+
+    @property
+    def name(self) -> str:
+        return self.path.name
+
+    def frames(
+        self, region: Region, out_size: tuple[int, int], every: int = 1, max_frames: int | None = None
+    ) -> Iterator[tuple[int, np.ndarray]]:
+        """Yield (source frame number, (H, W, 3) uint8 RGB) for frames 0, every, 2 every, ...
+
+        Each frame is the upright frame's ``region`` scaled to ``out_size`` = (H, W) by
+        ffmpeg (``crop`` with exact odd offsets, then ``scale`` with area averaging).
+        ``-fps_mode passthrough`` keeps one output frame per decoded frame, so the k-th frame
+        read is source frame k * every even in variable-frame-rate videos.
+        """
+        height, width = out_size
+        filters = []
+        if every > 1:
+            filters.append(f"select='not(mod(n\\,{every}))'")
+        if (region.x, region.y, region.width, region.height) != (0, 0, self.width, self.height):
+            filters.append(f"crop={region.width}:{region.height}:{region.x}:{region.y}:exact=1")
+        if (height, width) != (region.height, region.width):
+            filters.append(f"scale={width}:{height}:flags=area")
+        command = [_ffmpeg(), "-hide_banner", "-nostdin", "-loglevel", "error", "-i", str(self.path)]
+        command += ["-map", "0:v:0", "-vf", ",".join(filters) or "null", "-fps_mode", "passthrough"]
+        if max_frames is not None:
+            command += ["-frames:v", str(max_frames)]
+        command += ["-f", "rawvideo", "-pix_fmt", "rgb24", "-"]
+        frame_bytes = height * width * 3
+        with tempfile.TemporaryFile() as log:
+            process = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log)
+            count = 0
+            try:
+                while True:
+                    data = process.stdout.read(frame_bytes)
+                    if len(data) < frame_bytes:
+                        break
+                    yield count * every, np.frombuffer(data, np.uint8).reshape(height, width, 3)
+                    count += 1
+                process.stdout.close()
+                returncode = process.wait()
+            finally:
+                if process.poll() is None:  # the consumer stopped early, or an error or Ctrl-C
+                    process.kill()
+                    process.wait()
+            log.seek(0)
+            text = log.read().decode("utf-8", "replace")
+        broken = [line for line in text.splitlines() if any(sign in line for sign in TRUNCATION_SIGNS)]
+        if returncode != 0 or len(data) not in (0, frame_bytes) or broken:
+            detail = (broken or [_last_line(text)])[0].split("] ")[-1].replace(str(self.path), self.name)
+            raise PghmError(
+                f"{self.name}: truncated or corrupt video (decoding stopped after source frame "
+                f"{max(count - 1, 0) * every}: {detail})"
+            )
+
+
+@dataclass(frozen=True)
+class ImageFolder:
+    """A folder of images, the frames in file-name order; every image must have the same upright size.
+
+    Attributes:
+        path: the folder.
+        files: the image files, sorted by name.
+        width: W of the upright images.
+        height: H of the upright images.
+    """
+
+    path: Path
+    files: tuple[Path, ...]
+    width: int
+    height: int
+
+    @classmethod
+    def open(cls, path: Path) -> ImageFolder:
+        files = tuple(sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()))
+        if not files:
+            raise PghmError(f"{path.name}: a folder with no images ({', '.join(IMAGE_SUFFIXES)})")
+        width, height = _upright_size(files[0])
+        return cls(path, files, width, height)
+
+    @property
+    def name(self) -> str:
+        return self.path.name
+
+    @property
+    def frame_estimate(self) -> int:
+        return len(self.files)
+
+    def frames(
+        self, region: Region, out_size: tuple[int, int], every: int = 1, max_frames: int | None = None
+    ) -> Iterator[tuple[int, np.ndarray]]:
+        """Yield (image number in name order, (H, W, 3) uint8 RGB), as :meth:`VideoFile.frames`."""
+        numbers = range(0, len(self.files), every)
+        for count, number in enumerate(numbers):
+            if max_frames is not None and count >= max_frames:
+                return
+            yield number, _read_region(self.files[number], (self.width, self.height), region, out_size)
+
+
+QUARTER_TURNS = (5, 6, 7, 8)
+"""EXIF orientations that turn the image a quarter turn (width and height swap)."""
+
+
+def _upright(image: Image.Image) -> tuple[int, int]:
+    """(W, H) of an open image after its EXIF orientation."""
+    width, height = image.size
+    if image.getexif().get(ImageOps.ExifTags.Base.Orientation, 1) in QUARTER_TURNS:
+        return height, width
+    return width, height
+
+
+def _upright_size(file: Path) -> tuple[int, int]:
+    """(W, H) of an image after its EXIF orientation, from its header."""
+    try:
+        with Image.open(file) as image:
+            return _upright(image)
+    except IMAGE_READ_ERRORS as error:
+        raise PghmError(f"{file.name}: not a readable image ({error})") from None
+
+
+def _read_region(file: Path, size: tuple[int, int], region: Region, out_size: tuple[int, int]) -> np.ndarray:
+    """The upright image's ``region`` resampled to ``out_size`` (H, W); a JPEG is decoded at the
+    smallest power-of-two reduction (``Image.draft``) still at least as fine as the output."""
+    height, width = out_size
+    scale = max(width / region.width, height / region.height)
+    try:
+        with Image.open(file) as image:
+            upright = _upright(image)
+            if upright != size:
+                raise PghmError(
+                    f"{file.name}: {upright[0]}x{upright[1]} pixels, "
+                    f"the folder's first image is {size[0]}x{size[1]}; every frame must have one size"
+                )
+            image.draft("RGB", (max(1, int(image.width * scale)), max(1, int(image.height * scale))))
+            image = ImageOps.exif_transpose(image).convert("RGB")
+    except PghmError:
+        raise
+    except IMAGE_READ_ERRORS as error:
+        raise PghmError(f"{file.name}: not a readable image ({error})") from None
+    # After draft the image is the upright frame shrunk by (fx, fy); the region shrinks with it.
+    fx, fy = image.width / size[0], image.height / size[1]
+    box = (region.x * fx, region.y * fy, (region.x + region.width) * fx, (region.y + region.height) * fy)
+    return np.asarray(image.resize((width, height), Image.Resampling.LANCZOS, box=box))
+
+
+def open_source(path: str | os.PathLike) -> VideoFile | ImageFolder:
+    """The reader for ``path``: a folder of images, or any file ffmpeg decodes as video."""
+    path = Path(path)
+    if not path.exists():
+        raise PghmError(f"{path}: no such file or folder")
+    if path.is_dir():
+        return ImageFolder.open(path)
+    return VideoFile.open(path)

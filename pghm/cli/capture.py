@@ -1,0 +1,67 @@
+"""``pghm capture``: a video of a person becomes a subject folder (docs/capture.md).
+
+    pghm capture INPUT --out SUBJECT [--every N] [--max-frames N] [--size PX]
+                 [--fov DEG | --focal PX] [--test-every N] [--quiet]
+
+INPUT is a video file (mp4, mov, webm, avi, anything ffmpeg reads) or a folder of images.
+Needs the ``capture`` extra (mediapipe): ``pip install 'pghm[capture]'``.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from pghm.capture.config import DEFAULT_SIZE, DEFAULT_TEST_EVERY, CaptureConfig
+
+
+def _capture(args: argparse.Namespace) -> int:
+    from pghm.capture.pipeline import capture
+
+    config = CaptureConfig(
+        every=args.every,
+        max_frames=args.max_frames,
+        size=args.size,
+        fov_deg=args.fov,
+        focal_px=args.focal,
+        test_every=args.test_every,
+        progress=not args.quiet,
+    )
+    out = capture(args.input, args.out, config)
+    print(f"{out}: subject written; next: pghm data check {out}, then pghm fit {out} --prior assets/prior.pt")
+    return 0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "capture",
+        help="make a subject folder from a video of a person: masks, landmarks, body fit, camera",
+        description=(
+            "Make a subject folder (docs/data.md) from a video file or a folder of images of one person: "
+            "the person's mask, body landmarks, a fitted body and the camera, ready for pghm fit."
+        ),
+    )
+    parser.add_argument("input", help="a video file (mp4, mov, webm, avi, ...) or a folder of images")
+    parser.add_argument("--out", required=True, help="the new subject folder to write")
+    parser.add_argument("--every", type=int, default=1, help="keep every N-th frame (default 1: all)")
+    parser.add_argument("--max-frames", type=int, default=None, help="stop after this many kept frames")
+    parser.add_argument(
+        "--size", type=int, default=DEFAULT_SIZE, help=f"longest side of the subject images (default {DEFAULT_SIZE})"
+    )
+    camera = parser.add_mutually_exclusive_group()
+    camera.add_argument(
+        "--fov",
+        type=float,
+        default=None,
+        help="field of view along the frame's longest side, degrees (default: the body fit estimates the focal)",
+    )
+    camera.add_argument(
+        "--focal", type=float, default=None, help="focal length in pixels of the full-resolution frames"
+    )
+    parser.add_argument(
+        "--test-every",
+        type=int,
+        default=DEFAULT_TEST_EVERY,
+        help=f"every N-th kept frame goes to the test split (default {DEFAULT_TEST_EVERY})",
+    )
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.set_defaults(func=_capture)
