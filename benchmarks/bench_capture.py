@@ -42,6 +42,7 @@ import numpy as np
 from common import DOCS, ROOT, load_average, print_table, write_json
 from PIL import Image
 
+from pghm.capture.crop import Region, crop_intrinsics, from_region
 from pghm.data.subject import Subject, check, read_mask
 from pghm.data.synth.video import WalkTruth, graded_background, render_walk_video, walk_config
 
@@ -135,62 +136,45 @@ def run_capture(video: Path, out: Path, log: Path, options: tuple[str, ...] = ()
 
 @dataclass(frozen=True)
 class Crop:
-    """The capture's crop and resize: subject pixel u_sub = scale (u_src - left), v likewise.
+    """The capture's crop (``pghm.capture.crop``): ``region`` of the video frame resized to ``size`` (H', W')."""
 
-    Continuous pixel coordinates (pixel centres at +0.5), so the map is exact for both
-    points and image edges.
-    """
+    region: Region
+    size: tuple[int, int]
 
-    left: float
-    top: float
-    scale: float
-    width: int
-    height: int
+    @classmethod
+    def of(cls, subject: Subject) -> Crop:
+        """The crop recorded in the subject's meta.json; the images' size."""
+        crop = subject.meta["crop"]
+        region = Region(int(crop["x"]), int(crop["y"]), int(crop["width"]), int(crop["height"]))
+        return cls(region, (int(subject.arrays.height[0]), int(subject.arrays.width[0])))
 
     def to_source(self, points: np.ndarray) -> np.ndarray:
         """(..., 2) subject pixel positions -> source-video pixel positions."""
-        return points / self.scale + np.array([self.left, self.top])
+        return from_region(points, self.region, self.size)
 
     def to_subject_K(self, K: np.ndarray) -> np.ndarray:  # noqa: N802, N803
-        """(3, 3) or (n, 3, 3) source intrinsics -> the subject image's."""
-        shift = np.array([[self.scale, 0.0, -self.scale * self.left], [0.0, self.scale, -self.scale * self.top], [0, 0, 1]])
-        return shift @ K
+        """(n, 3, 3) source intrinsics -> the subject images'."""
+        return np.stack([crop_intrinsics(k, self.region, self.size) for k in K])
 
     def box(self) -> tuple[int, int, int, int]:
-        """(left, top, right, bottom) in source pixels, rounded to whole pixels."""
-        return (
-            round(self.left),
-            round(self.top),
-            round(self.left + self.width / self.scale),
-            round(self.top + self.height / self.scale),
-        )
+        r = self.region
+        return r.x, r.y, r.x + r.width, r.y + r.height
 
     def mask_to_source(self, mask: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-        """(H, W) bool source-video mask of a (h, w) subject mask (nearest resampling)."""
-        left, top, right, bottom = self.box()
-        pasted = Image.fromarray(mask.astype(np.uint8) * 255).resize((right - left, bottom - top), Image.Resampling.NEAREST)
+        """(H, W) bool source-video mask of a (H', W') subject mask (nearest resampling)."""
+        r = self.region
+        pasted = Image.fromarray(mask.astype(np.uint8) * 255).resize((r.width, r.height), Image.Resampling.NEAREST)
         out = np.zeros(size, dtype=bool)
-        region = np.asarray(pasted) > 0
-        # The crop may reach past the frame (padding): keep the part inside it.
-        y0, x0 = max(top, 0), max(left, 0)
-        y1, x1 = min(bottom, size[0]), min(right, size[1])
-        out[y0:y1, x0:x1] = region[y0 - top : y1 - top, x0 - left : x1 - left]
+        out[r.y : r.y + r.height, r.x : r.x + r.width] = np.asarray(pasted) > 0
         return out
 
     def image_to_subject(self, image: np.ndarray) -> np.ndarray:
-        """(h, w, ...) subject-size crop of a source image (bilinear; nearest for masks)."""
-        resample = Image.Resampling.NEAREST if image.dtype == bool else Image.Resampling.BILINEAR
-        pixels = image.astype(np.uint8) * 255 if image.dtype == bool else image
-        region = Image.fromarray(pixels).crop(self.box()).resize((self.width, self.height), resample)
-        out = np.asarray(region)
-        return out > 0 if image.dtype == bool else out
-
-
-def crop_of(subject: Subject, truth_K: np.ndarray) -> Crop:  # noqa: N803
-    """The capture's crop, from the subject's meta.json."""
-    crop = subject.meta["crop"]
-    a = subject.arrays
-    return Crop(float(crop["left"]), float(crop["top"]), float(crop["scale"]), int(a.width[0]), int(a.height[0]))
+        """(H', W', ...) the crop of a source image or bool mask, resized (bilinear; nearest for masks)."""
+        is_mask = image.dtype == bool
+        pixels = image.astype(np.uint8) * 255 if is_mask else image
+        resample = Image.Resampling.NEAREST if is_mask else Image.Resampling.BILINEAR
+        region = Image.fromarray(pixels).crop(self.box()).resize(self.size[::-1], resample)
+        return np.asarray(region) > 0 if is_mask else np.asarray(region)
 
 
 # ------------------------------------------------------------------ measuring against the truth
@@ -292,7 +276,7 @@ def measure(truth: WalkTruth, subject_dir: Path) -> Comparison:
     subject = Subject.open(subject_dir)
     a, t = subject.arrays, truth.arrays
     frames = np.asarray(a.frame_index, dtype=np.int64)
-    crop = crop_of(subject, t.K[0])
+    crop = Crop.of(subject)
     total, size = len(truth.masks), truth.masks.shape[1:]
     ious = np.zeros(total)
     for i, frame in enumerate(frames):
@@ -344,7 +328,7 @@ def reference_subject(truth: WalkTruth, video: Path, captured_dir: Path, out: Pa
     captured = Subject.open(captured_dir)
     a, t = captured.arrays, truth.arrays
     frames = np.asarray(a.frame_index, dtype=np.int64)
-    crop = crop_of(captured, t.K[0])
+    crop = Crop.of(captured)
     decoded = read_video(video, set(frames.tolist()))
     for i, frame in enumerate(frames):
         mask = crop.image_to_subject(truth.masks[frame])
