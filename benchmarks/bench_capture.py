@@ -201,55 +201,6 @@ def person_height_px(masks: np.ndarray) -> np.ndarray:
     return (last - first).astype(np.float64)
 
 
-def joint_names() -> list[str]:
-    """The canonical joints Anny has (20 of the 22: no ``left_foot``/``right_foot``), in order."""
-    from pghm.body import CANONICAL_JOINTS, load_body
-
-    return [name for name in CANONICAL_JOINTS if name in load_body("anny").joint_map]
-
-
-def canonical_joints(shape: np.ndarray, rotations: np.ndarray, translation: np.ndarray) -> np.ndarray:
-    """(F, N, 3) world positions of the canonical joints (bone heads) of Anny posed per frame."""
-    import torch
-
-    from pghm.body import load_body
-
-    body = load_body("anny")
-    rest = body.rest(torch.as_tensor(shape, dtype=torch.float32))
-    pose = body.pose_from_arrays(torch.as_tensor(rotations, dtype=torch.float32), torch.as_tensor(translation, dtype=torch.float32))
-    with torch.no_grad():
-        transforms = body.bone_transforms(pose, rest.joints)
-    heads = (transforms[..., :3, :3] @ rest.joints[..., None])[..., 0] + transforms[..., :3, 3]
-    return heads[:, [body.joint_map[name] for name in joint_names()]].double().numpy()
-
-
-def to_camera(points: np.ndarray, world_to_camera: np.ndarray) -> np.ndarray:
-    """(F, N, 3) camera coordinates of world points (F, N, 3) under (F, 4, 4) extrinsics."""
-    return points @ np.swapaxes(world_to_camera[:, :3, :3], 1, 2) + world_to_camera[:, None, :3, 3]
-
-
-def project(camera_points: np.ndarray, K: np.ndarray) -> np.ndarray:  # noqa: N803
-    """(F, N, 2) pixels of camera points (F, N, 3) under (F, 3, 3) intrinsics."""
-    uvw = camera_points @ np.swapaxes(K, 1, 2)
-    return uvw[..., :2] / uvw[..., 2:]
-
-
-def procrustes_aligned(source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """(F, N, 3) ``source`` after the per-frame similarity (s, R, t) minimising |s R x + t - y|^2.
-
-    Umeyama: with centred X, Y and X^T Y = U S V^T, R = V D U^T (D fixes a reflection),
-    s = tr(S D) / |X|^2, t = mean(y) - s R mean(x).
-    """
-    mu_x, mu_y = source.mean(1, keepdims=True), target.mean(1, keepdims=True)
-    x, y = source - mu_x, target - mu_y
-    u, sigma, vt = np.linalg.svd(np.swapaxes(x, 1, 2) @ y)
-    d = np.ones_like(sigma)
-    d[:, -1] = np.sign(np.linalg.det(np.swapaxes(vt, 1, 2) @ np.swapaxes(u, 1, 2)))
-    rotation = np.swapaxes(vt, 1, 2) @ (d[:, :, None] * np.swapaxes(u, 1, 2))
-    scale = (sigma * d).sum(1) / (x**2).sum((1, 2))
-    return scale[:, None, None] * x @ np.swapaxes(rotation, 1, 2) + mu_y
-
-
 @dataclass(frozen=True)
 class Comparison:
     """A captured subject against the truth, in source-video pixels.
@@ -271,6 +222,8 @@ class Comparison:
 
 def measure(truth: WalkTruth, subject_dir: Path) -> Comparison:
     """Metrics a-c of the module docstring for one captured subject."""
+    from pghm.body import load_body
+    from pghm.capture.metrics import camera_joints, error_2d_percent, mapped_joints, mpjpe, pa_mpjpe, project
     from pghm.data.subject import image_name
 
     subject = Subject.open(subject_dir)
@@ -284,29 +237,31 @@ def measure(truth: WalkTruth, subject_dir: Path) -> Comparison:
         true = truth.masks[frame]
         ious[frame] = (captured & true).sum() / max((captured | true).sum(), 1)
 
-    root = joint_names().index("pelvis")
-    true_cam = to_camera(canonical_joints(t.shape, t.rotations_true[frames], t.translation_true[frames]), t.world_to_camera[frames])
-    cap_cam = to_camera(canonical_joints(a.shape, a.rotations, a.translation), a.world_to_camera)
-    true_rel, cap_rel = true_cam - true_cam[:, root : root + 1], cap_cam - cap_cam[:, root : root + 1]
-    mpjpe = np.linalg.norm(cap_rel - true_rel, axis=-1).mean(1)
-    pa_mpjpe = np.linalg.norm(procrustes_aligned(cap_rel, true_rel) - true_rel, axis=-1).mean(1)
-
+    body = load_body("anny")
+    root = mapped_joints(body)[0].index("pelvis")
+    true_cam = camera_joints(body, t.shape, t.rotations_true[frames], t.translation_true[frames], t.world_to_camera[frames])
+    cap_cam = camera_joints(body, a.shape, a.rotations, a.translation, a.world_to_camera)
     true_uv = project(true_cam, t.K[frames])
     cap_uv = crop.to_source(project(cap_cam, a.K))
-    reproj_pct = 100 * np.linalg.norm(cap_uv - true_uv, axis=-1).mean(1) / person_height_px(truth.masks[frames])
+    height = person_height_px(truth.masks[frames])
+    per_frame = [
+        (mpjpe(cap_cam[[k]], true_cam[[k]], root), pa_mpjpe(cap_cam[[k]], true_cam[[k]]), error_2d_percent(cap_uv[[k]], true_uv[[k]], height[[k]]))
+        for k in range(len(frames))
+    ]
+    mpjpe_m, pa_mpjpe_m, reproj_pct = (np.array(column) for column in zip(*per_frame))
     metrics = {
         "frames": total,
         "kept": len(frames),
         "iou": float(ious.mean()),
         "iou_kept": float(ious[frames].mean()),
-        "mpjpe_mm": float(1000 * mpjpe.mean()),
-        "pa_mpjpe_mm": float(1000 * pa_mpjpe.mean()),
+        "mpjpe_mm": float(1000 * mpjpe_m.mean()),
+        "pa_mpjpe_mm": float(1000 * pa_mpjpe_m.mean()),
         "reproj_pct": float(reproj_pct.mean()),
         "per_frame": {
             "frame": frames.tolist(),
             "iou": ious[frames].round(4).tolist(),
-            "mpjpe_mm": (1000 * mpjpe).round(1).tolist(),
-            "pa_mpjpe_mm": (1000 * pa_mpjpe).round(1).tolist(),
+            "mpjpe_mm": (1000 * mpjpe_m).round(1).tolist(),
+            "pa_mpjpe_mm": (1000 * pa_mpjpe_m).round(1).tolist(),
             "reproj_pct": reproj_pct.round(2).tolist(),
         },
     }
@@ -376,9 +331,10 @@ TILE_SCALE = 0.5
 def canonical_parents() -> list[int]:
     """Parent of each canonical joint: its nearest canonical ancestor in the body's bone tree (-1: none)."""
     from pghm.body import load_body
+    from pghm.capture.metrics import mapped_joints
 
     body = load_body("anny")
-    names = joint_names()
+    names = mapped_joints(body)[0]
     index = {body.joint_map[name]: k for k, name in enumerate(names)}
     parents = []
     for name in names:
