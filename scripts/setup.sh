@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Set up pghm on a fresh Debian machine: the system OpenGL libraries the GL paths need
-# (only when missing), a .venv with pghm and its test tools, and the native splat kernel.
+# (only when missing), a .venv with pghm, its test tools and the capture extra (mediapipe),
+# and the native splat kernel.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -35,7 +36,7 @@ fi
 stamp=.venv/.pghm-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     echo "setup: installing pghm and its dependencies into .venv"
-    if ! .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[test]" >.venv/pip.log 2>&1; then
+    if ! .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[test,capture]" >.venv/pip.log 2>&1; then
         cat .venv/pip.log >&2
         exit 1
     fi

@@ -1,0 +1,67 @@
+"""Videos for the capture tests: written with imageio-ffmpeg, and the real phone video's frames.
+
+The real video (``shared/data/video/outdoor_dribble_40f.mp4``, never copied into the
+repository) is looked for in a ``shared/`` folder beside the repository or beside one of
+its parents (a git worktree sits one level deeper than the main checkout).
+"""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+REAL_VIDEO_PATH = Path("shared") / "data" / "video" / "outdoor_dribble_40f.mp4"
+REAL_VIDEO = next((parent / REAL_VIDEO_PATH for parent in ROOT.parents if (parent / REAL_VIDEO_PATH).is_file()), None)
+
+LOSSLESS_QUALITY = 10
+"""imageio-ffmpeg's best H.264 quality: flat test patterns come back within a few grey levels."""
+
+
+def ffmpeg() -> str:
+    import imageio_ffmpeg
+
+    return imageio_ffmpeg.get_ffmpeg_exe()
+
+
+def write_video(path: Path, frames: np.ndarray, fps: float = 10.0) -> Path:
+    """Write (T, H, W, 3) uint8 frames (even H and W) as an H.264 MP4."""
+    import imageio_ffmpeg
+
+    height, width = frames.shape[1:3]
+    writer = imageio_ffmpeg.write_frames(
+        str(path), (width, height), fps=fps, codec="libx264", quality=LOSSLESS_QUALITY,
+        macro_block_size=1, pix_fmt_out="yuv420p", ffmpeg_log_level="error",
+    )  # fmt: skip
+    writer.send(None)
+    for frame in frames:
+        writer.send(np.ascontiguousarray(frame))
+    writer.close()
+    return path
+
+
+def with_rotation(source: Path, path: Path, degrees: int) -> Path:
+    """Copy ``source`` into ``path`` with a display matrix rotating it ``degrees`` anticlockwise
+    (what a phone writes for a portrait video), without re-encoding."""
+    subprocess.run(
+        [ffmpeg(), "-v", "error", "-y", "-display_rotation:v:0", str(degrees), "-i", str(source), "-c", "copy", str(path)],
+        check=True,
+    )
+    return path
+
+
+def real_frames(count: int, longest: int = 256) -> np.ndarray:
+    """(count, H, W, 3) uint8: the real video's first frames, longest side ``longest`` (skip if the video is absent)."""
+    if REAL_VIDEO is None:
+        pytest.skip(f"the real video {REAL_VIDEO_PATH} is not beside the repository")
+    from pghm.capture.crop import Region
+    from pghm.capture.video import open_source, scaled_size
+
+    source = open_source(REAL_VIDEO)
+    full = Region.full(source.width, source.height)
+    size = scaled_size(full, longest)
+    size = (size[0] - size[0] % 2, size[1] - size[1] % 2)  # H.264 needs even sizes
+    return np.stack([image for _, image in source.frames(full, size, max_frames=count)])

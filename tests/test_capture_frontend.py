@@ -1,0 +1,173 @@
+"""The capture front end: crop geometry, tracking rules, masks, and MediaPipe on the real phone video."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from capture_videos import real_frames, write_video
+from PIL import Image
+
+from pghm.capture.config import CaptureConfig
+from pghm.capture.crop import Region, crop_intrinsics, from_region, person_region, to_region
+from pghm.capture.frontend import VISIBLE, consistent, person_components
+from pghm.capture.video import open_source, scaled_size
+
+BLOB_SIGMA = 3.0
+"""Pixels; wide enough that resampling moves the blob's centroid by far less than a pixel."""
+
+CENTROID_TOLERANCE = 0.15
+"""Pixels of the output: the blob is symmetric, so area or Lanczos resampling keeps its centroid
+up to the blob's truncation at the crop and the 8-bit rounding."""
+
+
+def blob(height: int, width: int, centre: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8 Gaussian blob centred at ``centre`` (u, v), pixel centres at half-integers."""
+    rows, cols = np.mgrid[0:height, 0:width] + 0.5
+    value = np.exp(-((cols - centre[0]) ** 2 + (rows - centre[1]) ** 2) / (2 * BLOB_SIGMA**2))
+    return np.repeat((255 * value).round().astype(np.uint8)[..., None], 3, axis=2)
+
+
+def centroid(image: np.ndarray) -> np.ndarray:
+    weight = image[..., 0].astype(np.float64)
+    rows, cols = np.mgrid[0 : image.shape[0], 0 : image.shape[1]] + 0.5
+    return np.array([(weight * cols).sum(), (weight * rows).sum()]) / weight.sum()
+
+
+@pytest.mark.parametrize("reader", ["images", "video"])
+def test_a_point_lands_on_the_same_content_after_crop_and_resize(tmp_path, reader):
+    """Project a 3D point with K into a frame and draw it; crop and shrink the frame with the
+    reader; the drawn point must be where K adjusted by crop_intrinsics projects it."""
+    width, height = 320, 240
+    K = np.array([[300.0, 0, 160.0], [0, 300.0, 120.0], [0, 0, 1]])
+    point = np.array([0.21, -0.13, 2.0])
+    uv = (K @ point)[:2] / point[2]
+    frame = blob(height, width, uv)
+    if reader == "images":
+        (tmp_path / "frames").mkdir()
+        Image.fromarray(frame).save(tmp_path / "frames" / "0.png")
+        source = open_source(tmp_path / "frames")
+    else:
+        source = open_source(write_video(tmp_path / "blob.mp4", np.stack([frame] * 2)))
+    region = Region(131, 57, 150, 101)  # odd offsets and sizes: the scale differs per axis after rounding
+    out_size = scaled_size(region, 96)
+    _, image = next(iter(source.frames(region, out_size)))
+    K_crop = crop_intrinsics(K, region, out_size)
+    expected = (K_crop @ point)[:2] / point[2]
+    np.testing.assert_allclose(centroid(image), expected, atol=CENTROID_TOLERANCE)
+    np.testing.assert_allclose(to_region(uv, region, out_size), expected, atol=1e-9)
+    np.testing.assert_allclose(from_region(expected, region, out_size), uv, atol=1e-9)
+
+
+def test_person_region_is_the_union_with_a_margin_clipped_to_the_frame():
+    boxes = np.array([[100.0, 50.0, 150.0, 250.0], [120.5, 40.2, 180.0, 240.0]])
+    # Union: x 100..180, y 40.2..250; longest side 209.8, margin 0.1 -> 20.98 on each side.
+    region = person_region(boxes, width=400, height=300, margin=0.1)
+    assert region == Region(79, 19, 201 - 79, 271 - 19)
+    assert person_region(boxes, width=170, height=260, margin=0.1) == Region(79, 19, 170 - 79, 260 - 19)
+
+
+def test_track_consistency():
+    box = np.array([100.0, 100.0, 160.0, 260.0])  # diagonal ~171
+    assert consistent(box, box, frames_lost=0)
+    assert consistent(box + 60, box, frames_lost=0)  # moved 85 px, half a diagonal
+    assert not consistent(box + 70, box, frames_lost=0)
+    assert consistent(box + 70, box, frames_lost=1)  # the tolerance grows while the person is lost
+    small = np.array([120.0, 160.0, 140.0, 210.0])  # same centre region, a third of the size
+    assert not consistent(small, box, frames_lost=0)
+
+
+def test_mask_keeps_the_components_holding_visible_landmarks():
+    mask = np.zeros((40, 60), bool)
+    mask[5:35, 5:20] = True  # the person
+    mask[30:38, 22:26] = True  # their hand, cut off from the body by the segmentation
+    mask[5:35, 40:55] = True  # someone else
+    landmarks = np.array([[10.5, 10.5], [24.0, 33.0], [47.0, 20.0]])
+    confidence = np.array([0.9, 0.8, 0.1])  # the third is not visible
+    kept = person_components(mask, landmarks, confidence)
+    expected = mask.copy()
+    expected[:, 30:] = False
+    np.testing.assert_array_equal(kept, expected)
+
+
+def observe(video, tmp_path, **options):
+    from pghm.capture.pipeline import observe_video
+
+    warnings = []
+    config = CaptureConfig(progress=False, **options)
+    front = observe_video(video, tmp_path / "subject", config, on_warning=warnings.append)
+    return front, warnings
+
+
+@pytest.fixture
+def subject_folder(tmp_path):
+    (tmp_path / "subject").mkdir()
+    return tmp_path
+
+
+MASK_FRACTION_RANGE = (0.05, 0.5)
+"""Share of the cropped frame a whole person's mask covers: the crop frames the person with a
+10 % margin, so they cover well over 5 %, and a body is never a filled rectangle."""
+
+LANDMARK_SLACK = 0.03
+"""Visible landmarks lie inside the mask's box up to this fraction of the image (a fingertip
+or heel landmark can sit on the mask's edge)."""
+
+
+def test_real_video_first_frames(subject_folder):
+    pytest.importorskip("mediapipe", reason="the capture extra (pip install 'pghm[capture]') is not installed")
+    from capture_videos import REAL_VIDEO
+
+    if REAL_VIDEO is None:
+        pytest.skip("the real video shared/data/video/outdoor_dribble_40f.mp4 is not beside the repository")
+    front, warnings = observe(REAL_VIDEO, subject_folder, max_frames=8)
+    obs = front.observations
+    assert warnings == []
+    assert obs.frame_index.tolist() == list(range(8))
+    height, width = obs.image_size
+    assert max(height, width) == 512
+    for k in range(8):
+        mask = np.asarray(obs.masks[k])
+        assert MASK_FRACTION_RANGE[0] < mask.mean() < MASK_FRACTION_RANGE[1]
+        rows, cols = np.nonzero(mask)
+        visible = obs.landmarks_2d[k][obs.confidence[k] >= VISIBLE]
+        assert len(visible) >= 20  # the whole body is in view
+        slack = LANDMARK_SLACK * max(height, width)
+        assert (visible[:, 0] >= cols.min() - slack).all() and (visible[:, 0] <= cols.max() + 1 + slack).all()
+        assert (visible[:, 1] >= rows.min() - slack).all() and (visible[:, 1] <= rows.max() + 1 + slack).all()
+        # Metric world landmarks: hips centred on the origin, shoulders an adult's width apart.
+        world = obs.landmarks_3d[k]
+        assert np.linalg.norm(world[[23, 24]].mean(0)) < 0.05
+        assert 0.2 < np.linalg.norm(world[11] - world[12]) < 0.6
+    # The subject images on disk are the frames composited on white through the masks.
+    image = np.asarray(Image.open(subject_folder / "subject" / "images" / "000000.png"))
+    assert image.shape == (height, width, 3)
+    assert (image[~np.asarray(obs.masks[0])] == 255).all()
+
+
+def test_two_people_the_tracked_one_is_followed(subject_folder):
+    """The real person beside a half-size copy of themselves: every frame follows the large one."""
+    pytest.importorskip("mediapipe", reason="the capture extra (pip install 'pghm[capture]') is not installed")
+    frames = real_frames(8)
+    count, height, width = frames.shape[:3]
+    small = frames[:, ::2, ::2]
+    canvas = np.full((count, height, 2 * width, 3), 128, np.uint8)
+    canvas[:, :, :width] = frames
+    canvas[:, height // 4 : height // 4 + small.shape[1], width + width // 4 : width + width // 4 + small.shape[2]] = small
+    front, warnings = observe(write_video(subject_folder / "two.mp4", canvas), subject_folder)
+    obs = front.observations
+    assert warnings == [] and len(obs.frame_index) == count
+    for k in range(count):
+        visible = obs.landmarks_2d[k][obs.confidence[k] >= VISIBLE]
+        in_frame = from_region(visible, front.region, obs.image_size)
+        assert (in_frame[:, 0] < width).all(), f"frame {k} followed the small person on the right"
+
+
+def test_frames_without_the_person_are_dropped_with_one_warning(subject_folder):
+    pytest.importorskip("mediapipe", reason="the capture extra (pip install 'pghm[capture]') is not installed")
+    frames = real_frames(10)
+    frames[[3, 5]] = 128
+    front, warnings = observe(write_video(subject_folder / "gaps.mp4", frames), subject_folder)
+    assert front.observations.frame_index.tolist() == [0, 1, 2, 4, 6, 7, 8, 9]
+    assert front.dropped == [3, 5]
+    assert len(warnings) == 1 and "2 of 10 frames (3, 5)" in warnings[0] and "gaps.mp4" in warnings[0]
+    assert len(list((subject_folder / "subject" / "images").glob("*.png"))) == 8

@@ -1,0 +1,161 @@
+"""The capture readers: frames, stride, max frames, crop and resize, rotation, image folders, bad files."""
+
+from __future__ import annotations
+
+import subprocess
+
+import numpy as np
+import pytest
+from capture_videos import ffmpeg, with_rotation, write_video
+from PIL import Image
+
+from pghm.capture.crop import Region
+from pghm.capture.video import open_source, scaled_size
+from pghm.errors import PghmError
+
+COMPRESSION_TOLERANCE = 12
+"""Grey levels H.264 (yuv420p, best quality) may move a flat test pattern, away from its edges."""
+
+GREY_STEP = 20
+"""Frame k of the numbered video is flat grey 10 + 20 k: its mean says which frame it is."""
+
+
+def numbered_frames(count: int, height: int = 48, width: int = 64) -> np.ndarray:
+    levels = 10 + GREY_STEP * np.arange(count)
+    return np.broadcast_to(levels[:, None, None, None], (count, height, width, 3)).astype(np.uint8)
+
+
+def frame_number(image: np.ndarray) -> int:
+    return int(round((image.mean() - 10) / GREY_STEP))
+
+
+def quadrants(height: int, width: int) -> np.ndarray:
+    """(H, W, 3) uint8: four flat colours, one per quadrant, so any turn or flip changes it."""
+    image = np.zeros((height, width, 3), np.uint8)
+    h, w = height // 2, width // 2
+    image[:h, :w] = (230, 30, 30)
+    image[:h, w:] = (30, 230, 30)
+    image[h:, :w] = (30, 30, 230)
+    image[h:, w:] = (230, 230, 30)
+    return image
+
+
+def interior(image: np.ndarray, border: int = 4) -> np.ndarray:
+    """The image without pixels within ``border`` of a quadrant edge (where compression blurs colours)."""
+    height, width = image.shape[:2]
+    keep = np.ones((height, width), bool)
+    for h in (0, height // 2, height):
+        keep[max(0, h - border) : h + border] = False
+    for w in (0, width // 2, width):
+        keep[:, max(0, w - border) : w + border] = False
+    return image[keep]
+
+
+def read(source, region=None, out_size=None, every=1, max_frames=None):
+    region = region or Region.full(source.width, source.height)
+    out_size = out_size or (region.height, region.width)
+    return list(source.frames(region, out_size, every, max_frames))
+
+
+def test_every_frame_in_order(tmp_path):
+    source = open_source(write_video(tmp_path / "numbered.mp4", numbered_frames(12)))
+    assert (source.width, source.height) == (64, 48)
+    frames = read(source)
+    assert [index for index, _ in frames] == list(range(12))
+    assert [frame_number(image) for _, image in frames] == list(range(12))
+
+
+@pytest.mark.parametrize("every, max_frames, expected", [(3, None, [0, 3, 6, 9]), (2, 3, [0, 2, 4]), (5, 10, [0, 5, 10])])
+def test_stride_and_max_frames(tmp_path, every, max_frames, expected):
+    source = open_source(write_video(tmp_path / "numbered.mp4", numbered_frames(12)))
+    frames = read(source, every=every, max_frames=max_frames)
+    assert [index for index, _ in frames] == expected
+    # The frame numbers are the source's: the content of frame k is frame k's.
+    assert [frame_number(image) for _, image in frames] == expected
+
+
+def test_crop_and_resize_match_the_frame(tmp_path):
+    pattern = quadrants(96, 128)
+    source = open_source(write_video(tmp_path / "quadrants.mp4", np.stack([pattern] * 2)))
+    region = Region(32, 24, 64, 48)  # centred on the quadrants' meeting point (64, 48)
+    size = scaled_size(region, 32)
+    assert size == (24, 32)
+    (_, image), _ = read(source, region, size)
+    assert image.shape == (24, 32, 3)
+    expected = quadrants(24, 32)
+    assert np.abs(interior(image).astype(int) - interior(expected)).max() <= COMPRESSION_TOLERANCE
+
+
+def test_never_enlarged():
+    assert scaled_size(Region(0, 0, 200, 100), 512) == (100, 200)
+    assert scaled_size(Region(0, 0, 1080, 1920), 512) == (512, 288)
+
+
+def test_rotated_video_comes_out_upright(tmp_path):
+    """A phone stores a portrait video as landscape frames plus "turn 90 degrees anticlockwise to show"."""
+    upright = quadrants(96, 64)
+    stored = np.rot90(upright, k=-1)  # what the sensor recorded: the upright picture turned clockwise
+    base = write_video(tmp_path / "stored.mp4", np.stack([stored] * 3))
+    source = open_source(with_rotation(base, tmp_path / "portrait.mp4", 90))
+    assert (source.width, source.height) == (64, 96)
+    frames = read(source)
+    assert len(frames) == 3
+    for _, image in frames:
+        assert image.shape == upright.shape
+        assert np.abs(interior(image).astype(int) - interior(upright)).max() <= COMPRESSION_TOLERANCE
+
+
+def test_huge_frames_decode_scaled(tmp_path):
+    pattern = quadrants(2160, 3840)
+    source = open_source(write_video(tmp_path / "uhd.mp4", np.stack([pattern] * 2)))
+    full = Region.full(source.width, source.height)
+    frames = read(source, full, scaled_size(full, 512))
+    assert [image.shape for _, image in frames] == [(288, 512, 3)] * 2
+    assert np.abs(interior(frames[0][1]).astype(int) - interior(quadrants(288, 512))).max() <= COMPRESSION_TOLERANCE
+
+
+def test_image_folder_in_name_order_with_exif_orientation(tmp_path):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k in (2, 0, 1):
+        Image.fromarray(numbered_frames(3)[k]).save(folder / f"frame_{k:02d}.png")
+    (folder / "notes.txt").write_text("not an image")
+    source = open_source(folder)
+    assert [(index, frame_number(image)) for index, image in read(source)] == [(0, 0), (1, 1), (2, 2)]
+
+    upright = quadrants(96, 64)
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    exif = Image.Exif()
+    exif[0x0112] = 6  # "turn 90 degrees clockwise to show"
+    Image.fromarray(np.rot90(upright, k=1).copy()).save(photos / "a.jpg", quality=95, exif=exif)
+    source = open_source(photos)
+    assert (source.width, source.height) == (64, 96)
+    (_, image), = read(source)
+    assert np.abs(interior(image).astype(int) - interior(upright)).max() <= COMPRESSION_TOLERANCE
+
+
+def test_image_folder_of_mixed_sizes_is_refused(tmp_path):
+    for name, size in (("a.png", (64, 48)), ("b.png", (32, 48))):
+        Image.new("RGB", size).save(tmp_path / name)
+    with pytest.raises(PghmError, match="b.png: 32x48 pixels"):
+        read(open_source(tmp_path))
+
+
+def test_not_a_video(tmp_path):
+    path = tmp_path / "notes.mp4"
+    path.write_text("hello")
+    with pytest.raises(PghmError, match="notes.mp4: not a readable video"):
+        open_source(path)
+
+
+def test_truncated_video(tmp_path):
+    source = write_video(tmp_path / "noise.mp4", np.random.default_rng(0).integers(0, 256, (20, 48, 64, 3), np.uint8))
+    # Moving the index to the front keeps the file openable when its end is cut off, as in a
+    # phone video copied incompletely.
+    whole = tmp_path / "whole.mp4"
+    subprocess.run([ffmpeg(), "-v", "error", "-i", str(source), "-c", "copy", "-movflags", "+faststart", str(whole)], check=True)
+    cut = tmp_path / "cut.mp4"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size * 2 // 3])
+    with pytest.raises(PghmError, match="cut.mp4: truncated or corrupt video"):
+        read(open_source(cut))
