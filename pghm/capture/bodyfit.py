@@ -1,0 +1,537 @@
+"""Fit Anny to a video's landmarks and masks: one shape, per-frame pose, a static camera.
+
+All frames are fitted at once (vectorised torch, Adam), in stages as SMPLify does:
+
+1. camera and root: root rotation and translation (and the focal length when the
+   intrinsics are unknown) against the torso landmarks, the body at rest;
+2. pose: the body bones join, with every landmark, the metric 3D landmarks, temporal
+   smoothness and the pose prior;
+3. shape and silhouette: the 6 phenotypes join, with the mask terms.
+
+The objective, over frames f and body landmarks l (:mod:`pghm.capture.landmarks`),
+
+    E = w_2d   sum c_fl rho(|pi(p_fl) - x_fl| / h)                  2D reprojection
+      + w_3d   sum c_fl huber(|(p_fl - p_f,hips) - X_fl|)           metric 3D, root-relative
+      + w_out  sum_v D_f(pi(v_fv)) / h                              vertices outside the mask
+      + w_cov  sum_m rho(min_v |pi(v_fv) - m_fm| / h)               mask pixels the body misses
+      + w_acc  sum |p_f-1 - 2 p_f + p_f+1|^2                        temporal smoothness
+      + w_pose |theta|^2 + w_limit relu(hinge outside its range)^2  pose prior, joint limits
+
+with pi the pinhole projection, c the landmark confidences, h the person's height in
+pixels, rho(r) = r^2 / (r^2 + sigma^2) (Geman-McClure), X MediaPipe's world landmarks
+(hip-centred, camera-aligned: OpenCV axes), D_f the distance transform of frame f's mask
+complement and m_fm pixels sampled inside the mask.
+
+Speed: bones whose rotation stays at rest move rigidly with their nearest fitted
+ancestor (their local transform is the identity), so skinning weights are folded onto the
+~18 fitted bones and forward kinematics runs on those only; only the landmark vertices and
+a subsample of the mesh are skinned; the rest body is linear in the shape around the
+current estimate (re-linearised during stage 3), so Anny's full shape model runs a few
+times, not every step.
+
+World frame (the subject format's): y up, the camera static at world_to_camera, looking
+along -z at the body, which faces +z at rest; the world is re-centred so the mean root
+translation is zero (the person stands about the origin on y = 0). All camera motion ends
+up in the root.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+import roma
+import torch
+from scipy.ndimage import distance_transform_edt
+from torch import Tensor
+
+from pghm.body import BodyModel, load_body
+from pghm.body.skinning import forward_kinematics, kinematic_levels
+from pghm.capture.landmarks import BODY_LANDMARKS, LANDMARK_NAMES, NUM_LANDMARKS, landmark_regressor
+from pghm.errors import PghmError
+
+if TYPE_CHECKING:
+    from pghm.capture.frontend import Observations
+
+FITTED_JOINTS = (
+    "spine1",
+    "spine2",
+    "spine3",
+    "neck",
+    "head",
+    "left_collar",
+    "right_collar",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_hip",
+    "right_hip",
+    "left_knee",
+    "right_knee",
+    "left_ankle",
+    "right_ankle",
+)
+"""Canonical joints whose rotation is fitted (besides the root); hands, toes, face and the
+limbs' twist bones stay at rest."""
+
+HINGES = {"left_elbow": "left_shoulder", "right_elbow": "right_shoulder", "left_knee": "left_hip", "right_knee": "right_hip"}
+"""Hinge joint -> the joint heading the segment before it. The hinge turns about
+d x z / |d x z|, d that segment's rest direction (the synthetic poses' forward swing)."""
+
+HINGE_RANGE = {"elbow": (0.0, 2.6), "knee": (-2.6, 0.0)}
+"""Allowed hinge angles (radians): elbows flex forwards (positive), knees backwards (negative)."""
+
+CAMERA_LOOK = np.diag([1.0, -1.0, -1.0])
+"""Rotation of the fitted camera: OpenCV axes (x right, y down, z forward) with the world's
+y up and the camera looking along -z (at a body facing +z)."""
+
+TORSO = ("left_shoulder", "right_shoulder", "left_hip", "right_hip")
+HIPS = ("left_hip", "right_hip")
+
+PRIOR_WEIGHTS = {
+    "spine1": 4.0,
+    "spine2": 4.0,
+    "spine3": 4.0,
+    "neck": 2.0,
+    "head": 1.0,
+    "left_collar": 8.0,
+    "right_collar": 8.0,
+    "left_ankle": 2.0,
+    "right_ankle": 2.0,
+}
+"""Relative pose-prior weight per fitted joint (1 for the others): the spine, collars and
+ankles are weakly observed by the landmarks and move little."""
+
+
+@dataclass(frozen=True)
+class BodyFitConfig:
+    """Options of :func:`fit_body`."""
+
+    body: str = "anny"
+    """Body model backend (only Anny's landmark correspondence is measured)."""
+
+    default_fov_deg: float = 60.0
+    """Field of view over the image's longer side assumed when the intrinsics are unknown
+    (a phone's main camera is 60-70 degrees); the fit refines it."""
+
+    fit_focal: bool = True
+    """Refine the focal length when the intrinsics are unknown."""
+
+    steps: tuple[int, int, int] = (60, 200, 100)
+    """Adam steps of the three stages (camera/root, pose, shape + silhouette)."""
+
+    learning_rate: float = 0.03
+    """Adam step for rotations (radians) and the shape logits; translation uses a tenth."""
+
+    min_confidence: float = 0.3
+    """Landmarks below this confidence are ignored."""
+
+    robust_sigma: float = 0.03
+    """Geman-McClure scale of the 2D terms, as a fraction of the person's height."""
+
+    weight_2d: float = 1.0
+    weight_3d: float = 0.5
+    huber_3d_m: float = 0.05
+    weight_outside: float = 1.0
+    weight_coverage: float = 0.3
+    weight_smooth: float = 20.0
+    weight_pose: float = 0.002
+    weight_limits: float = 1.0
+    weight_focal: float = 0.1
+    """Weights of the objective's terms (module docstring); weight_focal pulls log f to the default."""
+
+    silhouette_vertices: int = 600
+    """Mesh vertices (an even subsample) tested against the mask."""
+
+    coverage_samples: int = 64
+    """Mask pixels per frame that the body should cover."""
+
+    mask_size: int = 128
+    """Longest side (pixels) at which the masks are compared."""
+
+    seed: int = 0
+    """Random subsampling of vertices and mask pixels."""
+
+    def validate(self) -> BodyFitConfig:
+        if not 10.0 <= self.default_fov_deg <= 150.0:
+            raise PghmError(f"body fit: default_fov_deg must be 10 to 150 degrees, got {self.default_fov_deg}")
+        if len(self.steps) != 3 or min(self.steps) < 0:
+            raise PghmError(f"body fit: steps must be three non-negative counts, got {self.steps}")
+        return self
+
+
+@dataclass
+class BodyFit:
+    """The fitted body (the subject format's poses and camera).
+
+    Attributes:
+        shape: (S,) the body's shape for the whole video (Anny: 6 phenotypes in [0, 1]).
+        rotations: (F, J, 3) axis-angle per bone (J = body.num_bones).
+        translation: (F, 3) root translation, metres, world frame (y up).
+        world_to_camera: (4, 4) the static camera, OpenCV axes.
+        K: (3, 3) intrinsics, given or estimated.
+        residuals: final value of each term (2D error in pixels, 3D error in metres, ...).
+    """
+
+    shape: np.ndarray
+    rotations: np.ndarray
+    translation: np.ndarray
+    world_to_camera: np.ndarray
+    K: np.ndarray
+    residuals: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class _Skeleton:
+    """The fitted bones: the root plus :data:`FITTED_JOINTS`, with folded skinning weights.
+
+    Attributes:
+        bones: (B,) Anny bone index of each fitted bone (root first).
+        parents: B parent indices into ``bones`` (-1 for the root).
+        fold: (J, B) one-hot: Anny bone -> its nearest fitted ancestor (itself if fitted).
+        hinge_rows: row (1..B-1, in FITTED_JOINTS order + 1) of each hinge joint.
+        hinge_axes: (H, 3) unit hinge axes in rest axes (from the average body).
+    """
+
+    bones: list[int]
+    parents: list[int]
+    fold: Tensor
+    hinge_rows: list[int]
+    hinge_axes: Tensor
+
+
+def _skeleton(body: BodyModel) -> _Skeleton:
+    bones = [0] + [body.joint_map[name] for name in FITTED_JOINTS]
+    order = sorted(bones)
+    fitted = {bone: order.index(bone) for bone in order}
+
+    def fitted_ancestor(bone: int) -> int:
+        while bone not in fitted:
+            bone = body.parents[bone]
+        return fitted[bone]
+
+    fold = torch.zeros(body.num_bones, len(order))
+    for bone in range(body.num_bones):
+        fold[bone, fitted_ancestor(bone)] = 1.0
+    parents = [-1] + [fitted_ancestor(body.parents[bone]) for bone in order[1:]]
+    joints = body.rest().joints
+    axes, rows = [], []
+    for hinge, before in HINGES.items():
+        d = joints[body.joint_map[hinge]] - joints[body.joint_map[before]]
+        axis = torch.linalg.cross(d, torch.tensor([0.0, 0.0, 1.0]))
+        axes.append(axis / axis.norm())
+        rows.append(order.index(body.joint_map[hinge]))
+    return _Skeleton(order, parents, fold, rows, torch.stack(axes))
+
+
+@dataclass
+class _Frames:
+    """Observations as tensors, and the per-video constants derived from them."""
+
+    points: Tensor  # (F, L, 2) body landmarks, pixels
+    weights: Tensor  # (F, L) confidences, zero below min_confidence
+    world3d: Tensor  # (F, L, 3) MediaPipe world landmarks in the fit's world axes, hip-centred
+    height_px: float  # the person's height in pixels (loss normaliser)
+    outside: Tensor  # (F, 1, h, w) distance (in full-size pixels) to the mask, zero inside
+    inside: Tensor  # (F, M, 2) pixels sampled inside each mask (full-size pixel coordinates)
+    inside_valid: Tensor  # (F, M) whether the frame had mask pixels to sample
+    gaps: Tensor  # (F - 1,) source-frame gaps between consecutive kept frames
+
+
+def _check(observations: Observations) -> int:
+    frames = len(observations.frame_index)
+    height, width = observations.image_size
+    expected = {
+        "landmarks_2d": (frames, NUM_LANDMARKS, 2),
+        "confidence": (frames, NUM_LANDMARKS),
+        "landmarks_3d": (frames, NUM_LANDMARKS, 3),
+        "masks": (frames, height, width),
+    }
+    if frames == 0:
+        raise PghmError("body fit: no frames to fit (no person was found in any kept frame)")
+    for name, shape in expected.items():
+        value = np.asarray(getattr(observations, name))
+        if value.shape != shape:
+            raise PghmError(f"body fit: observations.{name} has shape {value.shape}, expected {shape}")
+        if name != "masks" and not np.isfinite(value).all():
+            bad = np.unique(np.nonzero(~np.isfinite(value))[0])
+            raise PghmError(f"body fit: observations.{name} is not finite in frames {observations.frame_index[bad].tolist()}")
+    return frames
+
+
+def _prepare(observations: Observations, config: BodyFitConfig, rng: np.random.Generator) -> _Frames:
+    index = list(BODY_LANDMARKS)
+    points = torch.as_tensor(np.asarray(observations.landmarks_2d, np.float32)[:, index])
+    confidence = torch.as_tensor(np.asarray(observations.confidence, np.float32)[:, index])
+    weights = confidence * (confidence >= config.min_confidence)
+    world3d = torch.as_tensor(np.asarray(observations.landmarks_3d, np.float32)[:, index]) @ torch.as_tensor(
+        CAMERA_LOOK, dtype=torch.float32
+    )
+    visible = weights > 0
+    spans = [
+        float((p[v, 1].max() - p[v, 1].min()).clamp_min(p[v, 0].max() - p[v, 0].min())) if v.sum() > 2 else np.nan
+        for p, v in zip(points, visible)
+    ]
+    masks = np.asarray(observations.masks, bool)
+    mask_heights = [np.ptp(np.nonzero(m.any(1))[0]) + 1 if m.any() else np.nan for m in masks]
+    height_px = float(np.nanmedian(mask_heights + spans)) if np.isfinite(mask_heights + spans).any() else 1.0
+    height_px = max(height_px, 1.0)
+
+    step = max(1, int(np.ceil(max(masks.shape[1:]) / config.mask_size)))
+    small = masks[:, ::step, ::step]
+    outside = np.stack([distance_transform_edt(~m) * step if m.any() else np.zeros(m.shape) for m in small])
+    inside = np.zeros((len(masks), config.coverage_samples, 2), np.float32)
+    inside_valid = np.zeros((len(masks), config.coverage_samples), bool)
+    for f, m in enumerate(small):
+        rows, cols = np.nonzero(m)
+        if len(rows):
+            pick = rng.integers(0, len(rows), config.coverage_samples)
+            inside[f] = np.stack([cols[pick], rows[pick]], 1) * step + step / 2
+            inside_valid[f] = True
+    frame_index = np.asarray(observations.frame_index, np.float64)
+    gaps = np.maximum(np.diff(frame_index), 1.0) if len(frame_index) > 1 else np.ones(0)
+    return _Frames(
+        points,
+        weights,
+        world3d,
+        height_px,
+        torch.as_tensor(outside, dtype=torch.float32)[:, None],
+        torch.as_tensor(inside),
+        torch.as_tensor(inside_valid),
+        torch.as_tensor(gaps, dtype=torch.float32),
+    )
+
+
+class _ShapeModel:
+    """The rest body's needed vertices and fitted joints, linear in the shape around ``centre``.
+
+    rest(s) = rest(s0) + J (s - s0), J by forward differences of Anny's shape model.
+    """
+
+    STEP = 0.05
+
+    def __init__(self, body: BodyModel, vertices: Tensor, bones: list[int]) -> None:
+        self.body, self.vertices, self.bones = body, vertices, bones
+
+    def linearise(self, centre: Tensor) -> None:
+        self.centre = centre.detach().clone()
+        base = self._evaluate(self.centre)
+        columns = []
+        for k in range(len(self.centre)):
+            step = self.STEP if self.centre[k] + self.STEP <= 1.0 else -self.STEP
+            shifted = self.centre.clone()
+            shifted[k] += step
+            columns.append((self._evaluate(shifted) - base) / step)
+        self.base, self.jacobian = base, torch.stack(columns, -1)  # (N, 3), (N, 3, S)
+
+    def _evaluate(self, shape: Tensor) -> Tensor:
+        rest = self.body.rest(shape)
+        return torch.cat([rest.vertices[self.vertices], rest.joints[self.bones]])
+
+    def __call__(self, shape: Tensor) -> tuple[Tensor, Tensor]:
+        """(N_v, 3) rest vertices and (B, 3) rest joints at ``shape`` (S,)."""
+        flat = self.base + self.jacobian @ (shape - self.centre)
+        return flat[: len(self.vertices)], flat[len(self.vertices) :]
+
+
+def _geman_mcclure(squared: Tensor, sigma: float) -> Tensor:
+    return squared / (squared + sigma**2)
+
+
+def _project(points: Tensor, focal: Tensor, centre: Tensor, camera: Tensor) -> Tensor:
+    """(F, N, 2) pixels of world points (F, N, 3): camera (4, 4) world_to_camera, shared focal."""
+    cam = points @ camera[:3, :3].T + camera[:3, 3]
+    return cam[..., :2] / cam[..., 2:].clamp_min(1e-3) * focal + centre
+
+
+def _procrustes_rotation(source: Tensor, target: Tensor, weights: Tensor) -> Tensor:
+    """(F, 3, 3) rotations R minimising sum_i w_i |R s_i - t_i|^2 for centred (F, N, 3) point sets."""
+    covariance = torch.einsum("fn,fni,fnj->fij", weights, target, source)
+    u, _, vt = torch.linalg.svd(covariance + 1e-9 * torch.eye(3))
+    d = torch.ones(len(u), 3)
+    d[:, -1] = torch.sign(torch.linalg.det(u @ vt))
+    return u @ torch.diag_embed(d) @ vt
+
+
+def fit_body(observations: Observations, config: BodyFitConfig | None = None) -> BodyFit:
+    """Fit one Anny shape, per-frame poses and a static camera to the observations.
+
+    Args:
+        observations: the front end's output for F kept frames (pghm.capture.frontend).
+        config: options (defaults: :class:`BodyFitConfig`).
+
+    Returns:
+        the fit, F frames in the observations' order.
+    """
+    config = (config or BodyFitConfig()).validate()
+    frames = _check(observations)
+    rng = np.random.default_rng(config.seed)
+    body = load_body(config.body)
+    skeleton = _skeleton(body)
+    data = _prepare(observations, config, rng)
+    regressor_index, regressor_weights = landmark_regressor(body.num_vertices)
+    silhouette = torch.as_tensor(np.sort(rng.choice(body.num_vertices, config.silhouette_vertices, replace=False)))
+    vertex_ids = torch.cat([regressor_index.reshape(-1), silhouette])
+    weights = (body.skin_weights[vertex_ids] @ skeleton.fold).contiguous()
+    shape_model = _ShapeModel(body, vertex_ids, skeleton.bones)
+    shape0 = body.default_shape()
+    shape_model.linearise(shape0)
+    levels = kinematic_levels(skeleton.parents)
+    num_land = len(BODY_LANDMARKS)
+    hips = [BODY_LANDMARKS.index(LANDMARK_NAMES.index(name)) for name in HIPS]
+    torso = [BODY_LANDMARKS.index(LANDMARK_NAMES.index(name)) for name in TORSO]
+
+    height, width = observations.image_size
+    centre = torch.tensor([width / 2.0, height / 2.0])
+    camera = torch.eye(4)
+    camera[:3, :3] = torch.as_tensor(CAMERA_LOOK, dtype=torch.float32)
+    if observations.K is not None:
+        K = torch.as_tensor(np.asarray(observations.K, np.float32))  # noqa: N806
+        focal0 = float(K[0, 0] + K[1, 1]) / 2
+        centre = K[:2, 2].clone()
+    else:
+        focal0 = 0.5 * max(height, width) / np.tan(np.radians(config.default_fov_deg) / 2)
+    log_focal = torch.tensor(np.log(focal0), dtype=torch.float32, requires_grad=True)
+    fit_focal = observations.K is None and config.fit_focal
+
+    def landmarks_and_vertices(rotvecs: Tensor, translation: Tensor, shape: Tensor) -> tuple[Tensor, Tensor]:
+        rest_vertices, rest_joints = shape_model(shape)
+        transforms = forward_kinematics(roma.rotvec_to_rotmat(rotvecs), rest_joints, translation, skeleton.parents, levels)
+        identity = torch.eye(3, 4)
+        deltas = (weights @ (transforms[..., :3, :] - identity).reshape(frames, -1, 12)).reshape(frames, -1, 3, 4)
+        posed = rest_vertices + (deltas[..., :3] @ rest_vertices[..., None])[..., 0] + deltas[..., 3]
+        marks = posed[:, : regressor_index.numel()].reshape(frames, num_land, -1, 3)
+        return (regressor_weights[None, ..., None] * marks).sum(-2), posed[:, regressor_index.numel() :]
+
+    # Initialisation: root rotation from MediaPipe's torso (Procrustes against the rest
+    # body's torso landmarks), root position from the 2D-3D correspondence at the default focal.
+    rest_marks, _ = landmarks_and_vertices(torch.zeros(frames, len(skeleton.bones), 3), torch.zeros(frames, 3), shape0)
+    rest_rel = rest_marks - rest_marks[:, hips].mean(1, keepdim=True)
+    torso_w = data.weights[:, torso] + 1e-3
+    rotation0 = _procrustes_rotation(rest_rel[:, torso], data.world3d[:, torso], torso_w)
+    position = _hip_positions(data, focal0, centre)  # (F, 3) camera frame
+    hip_world = (position - camera[:3, 3]) @ camera[:3, :3]
+    rest_hip = rest_marks[0, hips].mean(0)
+    root_joint = shape_model(shape0)[1][0]
+    # posed hip = R (rest_hip - root_joint) + root_joint + t.
+    translation0 = hip_world - (rotation0 @ (rest_hip - root_joint)) - root_joint
+
+    root = roma.rotmat_to_rotvec(rotation0).clone().requires_grad_(True)
+    translation = translation0.clone().requires_grad_(True)
+    pose = torch.zeros(frames, len(skeleton.bones) - 1, 3, requires_grad=True)
+    shape_logit = torch.logit(shape0.clamp(0.02, 0.98)).clone().requires_grad_(True)
+    hinge_rows = [r - 1 for r in skeleton.hinge_rows]
+    fitted_names = {body.joint_map[name]: name for name in FITTED_JOINTS}
+    prior = torch.tensor([PRIOR_WEIGHTS.get(fitted_names[bone], 1.0) for bone in skeleton.bones[1:]])
+    hinge_low = torch.tensor([HINGE_RANGE[n.split("_")[1]][0] for n in HINGES])
+    hinge_high = torch.tensor([HINGE_RANGE[n.split("_")[1]][1] for n in HINGES])
+
+    def objective(stage: int) -> tuple[Tensor, dict[str, Tensor]]:
+        shape = torch.sigmoid(shape_logit)
+        rotvecs = torch.cat([root[:, None], pose if stage > 0 else torch.zeros_like(pose)], 1)
+        marks, verts = landmarks_and_vertices(rotvecs, translation, shape)
+        focal = log_focal.exp()
+        pixels = _project(marks, focal, centre, camera)
+        sigma = config.robust_sigma
+        squared = ((pixels - data.points) ** 2).sum(-1) / data.height_px**2
+        # Stage 0 poses the body at rest: only the torso's landmarks are meaningful.
+        used = data.weights if stage > 0 else data.weights * torch.isin(torch.arange(num_land), torch.tensor(torso))
+        terms = {"2d": config.weight_2d * (used * _geman_mcclure(squared, sigma)).sum() / frames}
+        relative = marks - marks[:, hips].mean(1, keepdim=True)
+        error3d = torch.nn.functional.huber_loss(relative, data.world3d, reduction="none", delta=config.huber_3d_m).sum(-1)
+        terms["3d"] = config.weight_3d * (used * error3d).sum() / frames / config.huber_3d_m
+        if fit_focal:
+            terms["focal"] = config.weight_focal * (log_focal - np.log(focal0)) ** 2
+        if stage > 0:
+            if frames > 2:
+                accel = (marks[2:] - 2 * marks[1:-1] + marks[:-2]) / data.gaps[1:, None, None] / data.gaps[:-1, None, None]
+                terms["smooth"] = config.weight_smooth * (accel**2).sum() / frames
+            hinge = (pose[:, hinge_rows] * skeleton.hinge_axes).sum(-1)
+            terms["pose"] = config.weight_pose * (prior[:, None] * pose**2).sum() / frames
+            twist = pose[:, hinge_rows] - hinge[..., None] * skeleton.hinge_axes
+            limits = torch.relu(hinge_low - hinge) + torch.relu(hinge - hinge_high)
+            terms["limits"] = config.weight_limits * ((limits**2).sum() + (twist**2).sum()) / frames
+        if stage > 1:
+            vpix = _project(verts, focal, centre, camera)
+            h, w = data.outside.shape[-2:]
+            step = max(height, width) / max(h, w)
+            grid = torch.stack([vpix[..., 0] / (step * w), vpix[..., 1] / (step * h)], -1) * 2 - 1
+            outside = torch.nn.functional.grid_sample(data.outside, grid[:, None], align_corners=False, padding_mode="border")
+            terms["outside"] = config.weight_outside * (outside[:, 0, 0] / data.height_px).mean(1).sum() / frames
+            nearest = torch.cdist(data.inside, vpix).min(-1).values / data.height_px
+            cover = _geman_mcclure(nearest**2, sigma) * data.inside_valid
+            terms["coverage"] = config.weight_coverage * cover.mean(1).sum() / frames
+        return sum(terms.values()), terms
+
+    stages = [
+        [root, translation] + ([log_focal] if fit_focal else []),
+        [root, translation, pose] + ([log_focal] if fit_focal else []),
+        [root, translation, pose, shape_logit] + ([log_focal] if fit_focal else []),
+    ]
+    terms: dict[str, Tensor] = {}
+    for stage, (params, steps) in enumerate(zip(stages, config.steps)):
+        groups = [{"params": [p], "lr": config.learning_rate * (0.1 if p is translation else 1.0)} for p in params]
+        optimiser = torch.optim.Adam(groups)
+        for step in range(steps):
+            if stage == 2 and step == steps // 2:
+                shape_model.linearise(torch.sigmoid(shape_logit).detach())
+            loss, terms = objective(stage)
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+
+    with torch.no_grad():
+        shape = torch.sigmoid(shape_logit)
+        rotations = torch.zeros(frames, body.num_bones, 3)
+        rotations[:, skeleton.bones] = torch.cat([root[:, None], pose], 1)
+        focal = float(log_focal.exp())
+        marks, _ = landmarks_and_vertices(torch.cat([root[:, None], pose], 1), translation, shape)
+        pixels = _project(marks, log_focal.exp(), centre, camera)
+        visible = data.weights > 0
+        error_px = float((pixels - data.points).norm(dim=-1)[visible].mean()) if visible.any() else float("nan")
+        # Re-centre the world on the mean root position: X' = X - c, so world_to_camera gains R c.
+        offset = translation.mean(0)
+        camera_out = camera.clone()
+        camera_out[:3, 3] = camera[:3, 3] + camera[:3, :3] @ offset
+        K_out = np.array([[focal, 0.0, float(centre[0])], [0.0, focal, float(centre[1])], [0.0, 0.0, 1.0]], np.float32)  # noqa: N806
+        residuals = {f"term_{k}": float(v) for k, v in terms.items()}
+        residuals["landmark_error_px"] = error_px
+        residuals["person_height_px"] = data.height_px
+    return BodyFit(
+        shape=shape.numpy().astype(np.float32),
+        rotations=rotations.numpy().astype(np.float32),
+        translation=(translation - offset).detach().numpy().astype(np.float32),
+        world_to_camera=camera_out.numpy().astype(np.float32),
+        K=K_out,
+        residuals=residuals,
+    )
+
+
+def _hip_positions(data: _Frames, focal: float, centre: Tensor) -> Tensor:
+    """(F, 3) camera-frame position of the hip centre explaining the 2D landmarks given the 3D ones.
+
+    With camera-aligned 3D landmarks X_l (hip-centred; camera axes = world axes flipped by
+    CAMERA_LOOK) and pixels x_l, the hip centre t solves, linearly in least squares,
+    (x_l - c) (X_l,z + t_z) = f (X_l,xy + t_xy) for every confident landmark. Frames
+    without enough landmarks take the median of the others.
+    """
+    look = torch.as_tensor(CAMERA_LOOK, dtype=torch.float32)
+    cam3d = data.world3d @ look  # back to camera axes (CAMERA_LOOK is its own inverse)
+    uv = data.points - centre
+    w = data.weights.sqrt()
+    frames, landmarks = uv.shape[:2]
+    # Rows for u: f t_x - u t_z = u Z - f X ; for v: f t_y - v t_z = v Z - f Y.
+    a = torch.zeros(frames, landmarks, 2, 3)
+    a[..., 0, 0] = focal
+    a[..., 1, 1] = focal
+    a[..., :, 2] = -uv
+    b = uv * cam3d[..., 2:] - focal * cam3d[..., :2]
+    a = (a * w[..., None, None]).reshape(frames, -1, 3)
+    b = (b * w[..., None]).reshape(frames, -1, 1)
+    ok = (data.weights > 0).sum(1) >= 4
+    solution = torch.linalg.lstsq(a.double() + 0.0, b.double()).solution[..., 0].float()
+    fallback = solution[ok].median(0).values if ok.any() else torch.tensor([0.0, 0.0, 3.0])
+    solution = torch.where(ok[:, None] & (solution[:, 2:] > 0.3), solution, fallback)
+    return solution
