@@ -53,6 +53,17 @@ def with_rotation(source: Path, path: Path, degrees: int) -> Path:
     return path
 
 
+def truncated_video(folder: Path) -> Path:
+    """``folder/cut.mp4``: a 20-frame video with its index moved to the front (so it still opens, as a
+    phone video copied incompletely does) and its last third cut off."""
+    source = write_video(folder / "noise.mp4", np.random.default_rng(0).integers(0, 256, (20, 48, 64, 3), np.uint8))
+    whole = folder / "whole.mp4"
+    subprocess.run([ffmpeg(), "-v", "error", "-i", str(source), "-c", "copy", "-movflags", "+faststart", str(whole)], check=True)
+    cut = folder / "cut.mp4"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size * 2 // 3])
+    return cut
+
+
 def real_frames(count: int, longest: int = 256) -> np.ndarray:
     """(count, H, W, 3) uint8: the real video's first frames, longest side ``longest`` (skip if the video is absent)."""
     if REAL_VIDEO is None:

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import subprocess
 import sys
 
 import numpy as np
 import pytest
-from capture_videos import ffmpeg, real_frames, write_video
+from capture_videos import real_frames, truncated_video, write_video
 
 from pghm.cli.main import main
 from pghm.errors import EXIT_USER_ERROR
@@ -43,11 +42,7 @@ def test_missing_input(tmp_path, capsys):
 
 def test_truncated_video(tmp_path, capsys):
     mediapipe_required()
-    source = write_video(tmp_path / "noise.mp4", np.random.default_rng(0).integers(0, 256, (20, 48, 64, 3), np.uint8))
-    whole = tmp_path / "whole.mp4"
-    subprocess.run([ffmpeg(), "-v", "error", "-i", str(source), "-c", "copy", "-movflags", "+faststart", str(whole)], check=True)
-    cut = tmp_path / "cut.mp4"
-    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size * 2 // 3])
+    cut = truncated_video(tmp_path)
     assert_refused(tmp_path, *run_capture(tmp_path, capsys, cut), "cut.mp4: truncated or corrupt video")
 
 

@@ -7,25 +7,25 @@ ships the detector, landmark and segmentation models inside its wheel: nothing i
 downloaded).
 
 Tracking. Over a photograph of a room MediaPipe, run on the whole frame, can miss the
-person or lock onto a person printed in the background. So each frame is first searched in
-a square around the previous frame's box (the person is then large in MediaPipe's input),
-and a detection only continues the track when it is consistent with it: its centre within
+person or lock onto a person printed in the background. Two MediaPipe instances work on
+each frame (:class:`PersonFinder`): one in video mode on the whole frame, which carries the
+person's region from frame to frame and so keeps them when its detector alone would fail
+(a back turned to the camera over clutter), and one in static-image mode on a square
+around the previous frame's box (the person is then large in the detector's input). A
+detection only continues the track when it is consistent with it: its centre within
 :data:`MAX_SHIFT` box diagonals of the previous box's and its size within a factor
-:data:`MAX_SCALE_CHANGE`, both loosened for each frame the person has been lost. When the
-square fails, the whole frame is searched. With no track (the first frame, or after
-:data:`LOST_RESET` frames without the person), the whole frame and three square windows
-along its long side are searched and the largest person found starts the track: the
-person filmed is the one the camera frames. Every call runs MediaPipe in static-image mode
-(detector then landmarks), because the crops move from frame to frame and its own video
-tracking assumes a fixed image.
+:data:`MAX_SCALE_CHANGE`, both loosened for each frame the person has been lost. With no
+track (the first frame, or after :data:`LOST_RESET` frames without the person), the whole
+frame and three square windows along its long side are searched and the largest person
+found starts the track: the person filmed is the one the camera frames.
 
 Masks: MediaPipe's segmentation (thresholded at :data:`MASK_THRESHOLD`) can include other
 people or clutter beside the person; only its connected components that hold one of the
 person's visible landmarks are kept.
 
 Two passes use this (:mod:`pghm.capture.pipeline`): :func:`track_person` on frames scaled
-small (boxes only), then :func:`observe` on the subject's cropped images, seeded with each
-frame's box, for the masks and landmarks at the subject's resolution.
+small (boxes only), then a new :class:`PersonFinder` on the subject's cropped images,
+seeded with each frame's box, for the masks and landmarks at the subject's resolution.
 """
 
 from __future__ import annotations
@@ -149,9 +149,16 @@ def native_logs_silenced() -> Iterator[None]:
 
 
 class PoseEstimator:
-    """MediaPipe Pose (legacy solution API, static-image mode) on a square of an image."""
+    """MediaPipe Pose (legacy solution API) on an image or a square of it.
 
-    def __init__(self) -> None:
+    Args:
+        video: MediaPipe's video mode: each call's landmarks give the next call's region, so
+            the detector runs only when the person is lost. Feed it whole frames of one
+            video in order (its regions are in image coordinates). Otherwise static-image
+            mode: detector then landmarks on every call, for squares that move between calls.
+    """
+
+    def __init__(self, video: bool = False) -> None:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # protobuf deprecation warnings at import
@@ -159,7 +166,7 @@ class PoseEstimator:
         except ImportError:
             raise PghmError(f"pghm capture needs mediapipe: {INSTALL_HINT}") from None
         self._pose = pose.Pose(
-            static_image_mode=True,
+            static_image_mode=not video,
             model_complexity=MODEL_COMPLEXITY,
             enable_segmentation=True,
             min_detection_confidence=MIN_DETECTION_CONFIDENCE,
@@ -276,23 +283,46 @@ def _area(box: Box) -> float:
     return float((box[2] - box[0]) * (box[3] - box[1]))
 
 
-def find_person(estimator: PoseEstimator, image: np.ndarray, previous: Box | None, frames_lost: int) -> Detection | None:
-    """The tracked person in ``image`` given the last box seen ``frames_lost`` frames ago (None: no track).
+class PersonFinder:
+    """The tracked person in each frame of one sequence of equally sized frames, fed in order.
 
-    With a track: the square around ``previous``, then the whole frame; a detection counts
-    only if :func:`consistent` with the track. Without: the whole frame and three windows,
-    the largest person found (see the module docstring).
+    Holds two MediaPipe instances: one in video mode fed every whole frame (it follows the
+    person through frames its detector alone misses, such as a back turned to the camera
+    over clutter), and one in static-image mode for the squares around the previous box and
+    the windows searched to start a track.
     """
-    height, width = image.shape[:2]
-    if previous is not None:
-        for roi in (search_square(previous), None):
-            found = estimator(image, roi)
-            if found is not None and consistent(found.box, previous, frames_lost):
-                return found
-        return None
-    candidates = [estimator(image, roi) for roi in (None, *_windows(width, height))]
-    candidates = [c for c in candidates if c is not None]
-    return max(candidates, key=lambda c: _area(c.box)) if candidates else None
+
+    def __init__(self) -> None:
+        self.video = PoseEstimator(video=True)
+        self.still = PoseEstimator(video=False)
+
+    def close(self) -> None:
+        self.video.close()
+        self.still.close()
+
+    def __enter__(self) -> PersonFinder:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __call__(self, image: np.ndarray, previous: Box | None, frames_lost: int) -> Detection | None:
+        """The person in ``image`` given their box ``previous`` seen ``frames_lost`` frames ago (None: no track).
+
+        With a track: video mode on the whole frame, then the square around ``previous``; a
+        detection counts only if :func:`consistent` with the track. Without: video mode on
+        the whole frame and three windows, the largest person found (see the module docstring).
+        """
+        followed = self.video(image)
+        if previous is not None:
+            if followed is not None and consistent(followed.box, previous, frames_lost):
+                return followed
+            found = self.still(image, search_square(previous))
+            return found if found is not None and consistent(found.box, previous, frames_lost) else None
+        height, width = image.shape[:2]
+        candidates = [followed, *(self.still(image, window) for window in _windows(width, height))]
+        candidates = [c for c in candidates if c is not None]
+        return max(candidates, key=lambda c: _area(c.box)) if candidates else None
 
 
 @dataclass
@@ -315,23 +345,23 @@ class Track:
 
 
 def track_person(
-    frames: Iterable[tuple[int, np.ndarray]], estimator: PoseEstimator, on_frame: Callable[[], None] | None = None
+    frames: Iterable[tuple[int, np.ndarray]], on_frame: Callable[[], None] | None = None
 ) -> Track:
-    """Follow one person through ``frames`` ((source frame number, (H, W, 3) uint8) pairs)."""
+    """Follow one person through ``frames`` ((source frame number, (H, W, 3) uint8) pairs of one size)."""
     indices, boxes, lost = [], [], []
     previous, frames_lost = None, 0
-    for index, image in frames:
-        found = find_person(estimator, image, previous, frames_lost)
-        if found is None:
-            lost.append(int(index))
-            frames_lost += 1
-            if frames_lost >= LOST_RESET:
-                previous, frames_lost = None, 0
-        else:
-            indices.append(int(index))
-            boxes.append(found.box)
-            previous, frames_lost = found.box, 0
-        if on_frame is not None:
-            on_frame()
+    with PersonFinder() as find:
+        for index, image in frames:
+            found = find(image, previous, frames_lost)
+            if found is None:
+                lost.append(int(index))
+                frames_lost += 1
+                if frames_lost >= LOST_RESET:
+                    previous, frames_lost = None, 0
+            else:
+                indices.append(int(index))
+                boxes.append(found.box)
+                previous, frames_lost = found.box, 0
+            if on_frame is not None:
+                on_frame()
     return Track(np.array(indices, dtype=np.int64), np.array(boxes, dtype=np.float64).reshape(-1, 4), lost)
-

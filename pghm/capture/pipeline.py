@@ -30,9 +30,8 @@ from pghm.capture.crop import Region, crop_intrinsics, person_region, to_region
 from pghm.capture.frontend import (
     NUM_LANDMARKS,
     Observations,
-    PoseEstimator,
+    PersonFinder,
     Track,
-    find_person,
     native_logs_silenced,
     track_person,
 )
@@ -81,7 +80,7 @@ def _require_frames(name: str, found: int, read: int, lost: list[int], config: C
         )
 
 
-def _track(source: VideoFile | ImageFolder, estimator: PoseEstimator, config: CaptureConfig) -> Track:
+def _track(source: VideoFile | ImageFolder, config: CaptureConfig) -> Track:
     """Pass 1: the person's box in each frame, in pixels of the full upright frame."""
     full = Region.full(source.width, source.height)
     size = scaled_size(full, TRACKING_SIZE)
@@ -90,7 +89,7 @@ def _track(source: VideoFile | ImageFolder, estimator: PoseEstimator, config: Ca
         total = min(total or config.max_frames, config.max_frames)
     frames = source.frames(full, size, config.every, config.max_frames)
     with tqdm(total=total, desc="capture: find person", unit="frame", disable=not config.progress, file=sys.stderr) as bar:
-        track = track_person(frames, estimator, on_frame=bar.update)
+        track = track_person(frames, on_frame=bar.update)
     scale = np.array([source.width / size[1], source.height / size[0]] * 2)
     track.boxes = track.boxes * scale
     return track
@@ -98,7 +97,6 @@ def _track(source: VideoFile | ImageFolder, estimator: PoseEstimator, config: Ca
 
 def _observe(
     source: VideoFile | ImageFolder,
-    estimator: PoseEstimator,
     track: Track,
     region: Region,
     out_size: tuple[int, int],
@@ -120,11 +118,14 @@ def _observe(
     kept, lost = [], []
     last = int(track.frame_index[-1])
     frames = source.frames(region, out_size, config.every, config.max_frames)
-    with tqdm(total=count, desc="capture: masks, landmarks", unit="frame", disable=not config.progress, file=sys.stderr) as bar:
+    with (
+        PersonFinder() as find,
+        tqdm(total=count, desc="capture: masks, landmarks", unit="frame", disable=not config.progress, file=sys.stderr) as bar,
+    ):
         for index, image in frames:
             if index in boxes:
                 box = to_region(boxes[index].reshape(2, 2), region, out_size).reshape(4)
-                found = find_person(estimator, image, box, frames_lost=0)
+                found = find(image, box, frames_lost=0)
                 if found is None:
                     lost.append(index)
                 else:
@@ -184,14 +185,14 @@ def observe_video(
     warns once (``on_warning``) listing the frames dropped.
     """
     source = open_source(input)
-    with native_logs_silenced(), PoseEstimator() as estimator:
-        track = _track(source, estimator, config)
+    with native_logs_silenced():
+        track = _track(source, config)
         _require_frames(source.name, len(track.frame_index), track.frames_read, track.lost, config)
         region = person_region(track.boxes, source.width, source.height, config.crop_margin)
         out_size = scaled_size(region, config.size)
         K = config.source_intrinsics(source.width, source.height)
         K = None if K is None else crop_intrinsics(K, region, out_size)
-        observations, lost_again = _observe(source, estimator, track, region, out_size, K, folder, config)
+        observations, lost_again = _observe(source, track, region, out_size, K, folder, config)
     dropped = sorted(track.lost + lost_again)
     _require_frames(source.name, len(observations.frame_index), track.frames_read, dropped, config)
     if dropped:
