@@ -239,13 +239,19 @@ def measure(truth: WalkTruth, subject_dir: Path) -> Comparison:
 
     body = load_body("anny")
     root = mapped_joints(body)[0].index("pelvis")
-    true_cam = camera_joints(body, t.shape, t.rotations_true[frames], t.translation_true[frames], t.world_to_camera[frames])
+    true_cam = camera_joints(
+        body, t.shape, t.rotations_true[frames], t.translation_true[frames], t.world_to_camera[frames]
+    )
     cap_cam = camera_joints(body, a.shape, a.rotations, a.translation, a.world_to_camera)
     true_uv = project(true_cam, t.K[frames])
     cap_uv = crop.to_source(project(cap_cam, a.K))
     height = person_height_px(truth.masks[frames])
     per_frame = [
-        (mpjpe(cap_cam[[k]], true_cam[[k]], root), pa_mpjpe(cap_cam[[k]], true_cam[[k]]), error_2d_percent(cap_uv[[k]], true_uv[[k]], height[[k]]))
+        (
+            mpjpe(cap_cam[[k]], true_cam[[k]], root),
+            pa_mpjpe(cap_cam[[k]], true_cam[[k]]),
+            error_2d_percent(cap_uv[[k]], true_uv[[k]], height[[k]]),
+        )
         for k in range(len(frames))
     ]
     mpjpe_m, pa_mpjpe_m, reproj_pct = (np.array(column) for column in zip(*per_frame))
@@ -314,7 +320,8 @@ def fit_and_eval(subject_dir: Path, avatar: Path) -> dict:
     subprocess.run([*pghm, "fit", str(subject_dir), "--prior", str(PRIOR), "--out", str(avatar)], check=True)
     fit_seconds = time.perf_counter() - started
     report = avatar.with_suffix(".eval.json")
-    subprocess.run([*pghm, "eval", str(avatar), str(subject_dir), "--split", "test", "--report", str(report)], check=True)
+    evaluate = [*pghm, "eval", str(avatar), str(subject_dir), "--split", "test", "--report", str(report)]
+    subprocess.run(evaluate, check=True)
     summary = json.loads(report.read_text())["mean"]
     return {"psnr": float(summary["psnr"]), "ssim": float(summary["ssim"]), "fit_seconds": round(fit_seconds, 1)}
 
@@ -504,7 +511,10 @@ def main() -> int:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--frames", type=int, default=100, help="frames per accuracy video (default %(default)s)")
     parser.add_argument(
-        "--speed-frames", type=int, default=SPEED_FRAMES, help="frames of the speed video, 0 to skip (default %(default)s)"
+        "--speed-frames",
+        type=int,
+        default=SPEED_FRAMES,
+        help="frames of the speed video, 0 to skip (default %(default)s)",
     )
     parser.add_argument(
         "--fit",
