@@ -509,7 +509,9 @@ def verdicts(rows: list[dict], speed: dict | None) -> dict[str, bool]:
     return out
 
 
-def report(args: argparse.Namespace, rows: list[dict], tiles: list[np.ndarray], speed: dict | None, load: float) -> None:
+def report(
+    args: argparse.Namespace, rows: list[dict], tiles: list[np.ndarray], speed: dict | None, load: float
+) -> None:
     """Print the table and verdicts; write the JSON and (with rows) the figures."""
     if rows:
         columns = ["background", "seed", "kept", "iou", "mpjpe_mm", "pa_mpjpe_mm", "reproj_pct", "capture_s", "peak_gb"]
