@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from common import DOCS, ROOT, load_average, print_table, write_json
+from common import DOCS, RESULTS, ROOT, load_average, print_table, write_json
 from PIL import Image
 
 from pghm.capture.crop import Region, crop_intrinsics, from_region
@@ -518,7 +518,7 @@ def report(
         if any("psnr_gap_db" in r for r in rows):
             columns.append("psnr_gap_db")
         print_table(rows, columns)
-        figure = args.results.replace("bench_capture", "capture_bench")
+        figure = figure_name(args.results)
         Image.fromarray(np.concatenate(tiles, axis=0)).save(DOCS / f"{figure}_frames.png")
         plot_metrics(rows, DOCS / f"{figure}.png")
         print(f"wrote docs/{figure}.png and docs/{figure}_frames.png")
@@ -539,6 +539,23 @@ def report(
             "command": " ".join(["python", "benchmarks/bench_capture.py", *sys.argv[1:]]),
         },
     )
+
+
+def figure_name(results: str) -> str:
+    return results.replace("bench_capture", "capture_bench")
+
+
+def combine(args: argparse.Namespace) -> None:
+    """Report the rows, speed and frame figures of the runs ``args.combine`` as one run, ``args.results``."""
+    rows, tiles, speed, loads = [], [], None, []
+    for name in args.combine:
+        run = json.loads((RESULTS / f"{name}.json").read_text())
+        rows += run["rows"]
+        speed = run["speed"] or speed
+        loads.append(run["load_before"])
+        if run["rows"]:
+            tiles.append(np.asarray(Image.open(DOCS / f"{figure_name(name)}_frames.png").convert("RGB")))
+    report(args, rows, tiles, speed, max(loads))
 
 
 def main() -> int:
@@ -565,10 +582,19 @@ def main() -> int:
         default="bench_capture",
         help="name of the JSON in benchmarks/results/ and of the figures in docs/ (default %(default)s)",
     )
+    parser.add_argument(
+        "--combine",
+        nargs="+",
+        metavar="RESULTS",
+        help="measure nothing: join the rows, speed and frame figures of earlier runs (e.g. seeds run in parallel)",
+    )
     parser.add_argument("--stages", nargs=2, metavar=("VIDEO", "FOLDER"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.stages:
         print(json.dumps(stage_seconds(Path(args.stages[0]), Path(args.stages[1]))))
+        return 0
+    if args.combine:
+        combine(args)
         return 0
     fit_cases = set(args.fit or ["plain_0"]) if args.fit is not None else set()
     load_before = load_average()
