@@ -5,8 +5,8 @@
 Columns are frames spread over the video; rows are the cropped frame (the region the person
 occupies over the video), the mask over it, and MediaPipe's 33 landmarks and skeleton
 (marker size by confidence). VIDEO defaults to the real phone video beside the repository
-(``shared/data/video/outdoor_dribble_40f.mp4`` in the nearest parent folder holding it). Prints the per-frame mask fraction and
-the crop.
+(``shared/data/video/outdoor_dribble_40f.mp4`` in the nearest parent folder holding it).
+Prints the per-frame mask fraction and the crop.
 """
 
 from __future__ import annotations

@@ -46,10 +46,8 @@ def write_video(path: Path, frames: np.ndarray, fps: float = 10.0) -> Path:
 def with_rotation(source: Path, path: Path, degrees: int) -> Path:
     """Copy ``source`` into ``path`` with a display matrix rotating it ``degrees`` anticlockwise
     (what a phone writes for a portrait video), without re-encoding."""
-    subprocess.run(
-        [ffmpeg(), "-v", "error", "-y", "-display_rotation:v:0", str(degrees), "-i", str(source), "-c", "copy", str(path)],
-        check=True,
-    )
+    command = [ffmpeg(), "-v", "error", "-y", "-display_rotation:v:0", str(degrees), "-i", str(source)]
+    subprocess.run([*command, "-c", "copy", str(path)], check=True)
     return path
 
 
@@ -58,7 +56,8 @@ def truncated_video(folder: Path) -> Path:
     phone video copied incompletely does) and its last third cut off."""
     source = write_video(folder / "noise.mp4", np.random.default_rng(0).integers(0, 256, (20, 48, 64, 3), np.uint8))
     whole = folder / "whole.mp4"
-    subprocess.run([ffmpeg(), "-v", "error", "-i", str(source), "-c", "copy", "-movflags", "+faststart", str(whole)], check=True)
+    command = [ffmpeg(), "-v", "error", "-i", str(source), "-c", "copy", "-movflags", "+faststart", str(whole)]
+    subprocess.run(command, check=True)
     cut = folder / "cut.mp4"
     cut.write_bytes(whole.read_bytes()[: whole.stat().st_size * 2 // 3])
     return cut

@@ -50,7 +50,8 @@ def test_video_without_a_person(tmp_path, capsys):
     mediapipe_required()
     frames = np.random.default_rng(1).integers(0, 256, (10, 64, 96, 3), np.uint8)
     path = write_video(tmp_path / "noise.mp4", frames)
-    assert_refused(tmp_path, *run_capture(tmp_path, capsys, path), "noise.mp4: no person found in any of the 10 frame(s)")
+    code, lines = run_capture(tmp_path, capsys, path)
+    assert_refused(tmp_path, code, lines, "noise.mp4: no person found in any of the 10 frame(s)")
 
 
 def test_too_few_frames_with_the_person(tmp_path, capsys):
@@ -91,3 +92,56 @@ def test_without_mediapipe_says_how_to_install(tmp_path, capsys, monkeypatch):
         monkeypatch.setitem(sys.modules, name, None)  # import mediapipe now raises ImportError
     path = write_video(tmp_path / "clip.mp4", np.zeros((2, 32, 32, 3), np.uint8))
     assert_refused(tmp_path, *run_capture(tmp_path, capsys, path), "pip install 'pghm[capture]'")
+
+
+def small_fit():
+    from pghm.capture.bodyfit import BodyFitConfig
+
+    return BodyFitConfig(steps=(2, 2, 2))  # the writer is under test here, not the fit's accuracy
+
+
+def test_capture_writes_a_subject_that_data_check_accepts(tmp_path):
+    mediapipe_required()
+    import json
+
+    from pghm.capture import CaptureConfig, capture
+    from pghm.data.subject import Subject, check
+
+    frames = real_frames(10)
+    frames[4] = 128  # one frame without the person
+    warnings = []
+    config = CaptureConfig(progress=False, test_every=4, focal_px=1500.0, body=small_fit())
+    out = capture(write_video(tmp_path / "clip.mp4", frames), tmp_path / "me", config, on_warning=warnings.append)
+    assert out == tmp_path / "me"
+    assert check(out) == []
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary folder left
+    assert len(warnings) == 1 and "(4)" in warnings[0]
+    subject = Subject.open(out)
+    assert len(subject) == 9
+    kept = [0, 1, 2, 3, 5, 6, 7, 8, 9]
+    assert subject.arrays.frame_index.tolist() == kept
+    assert json.loads((out / "splits.json").read_text()) == {"train": [0, 1, 2, 4, 5, 6, 8], "test": [3, 7]}
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["input"] == "clip.mp4" and str(tmp_path) not in (out / "meta.json").read_text()
+    assert meta["counts"] == {"frames_read": 10, "person_found": 9, "dropped": 1, "dropped_frames": [4]}
+    # The focal length given in full-frame pixels, carried through the crop and the resize.
+    crop = meta["crop"]
+    scale = subject.arrays.width[0] / crop["width"]
+    np.testing.assert_allclose(subject.arrays.K[0, 0, 0], 1500.0 * scale, rtol=1e-4)
+    frame = subject[0]
+    assert (frame.image[frame.mask == 0] == 1.0).all()  # composited on white through the mask
+    assert not (out / "masks.npy").exists()
+
+
+def test_interrupted_capture_leaves_nothing(tmp_path, monkeypatch):
+    mediapipe_required()
+    import pghm.capture.bodyfit
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pghm.capture.bodyfit, "fit_body", interrupted)
+    video = write_video(tmp_path / "clip.mp4", real_frames(8))
+    code = main(["capture", str(video), "--out", str(tmp_path / "out" / "me"), "--quiet"])
+    assert code == 130
+    assert list((tmp_path / "out").iterdir()) == []

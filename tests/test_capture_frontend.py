@@ -152,7 +152,8 @@ def test_two_people_the_tracked_one_is_followed(subject_folder):
     small = frames[:, ::2, ::2]
     canvas = np.full((count, height, 2 * width, 3), 128, np.uint8)
     canvas[:, :, :width] = frames
-    canvas[:, height // 4 : height // 4 + small.shape[1], width + width // 4 : width + width // 4 + small.shape[2]] = small
+    top, left = height // 4, width + width // 4
+    canvas[:, top : top + small.shape[1], left : left + small.shape[2]] = small
     front, warnings = observe(write_video(subject_folder / "two.mp4", canvas), subject_folder)
     obs = front.observations
     assert warnings == [] and len(obs.frame_index) == count
@@ -171,3 +172,20 @@ def test_frames_without_the_person_are_dropped_with_one_warning(subject_folder):
     assert front.dropped == [3, 5]
     assert len(warnings) == 1 and "2 of 10 frames (3, 5)" in warnings[0] and "gaps.mp4" in warnings[0]
     assert len(list((subject_folder / "subject" / "images").glob("*.png"))) == 8
+
+
+def test_native_logs_are_silenced_but_python_messages_are_not():
+    """MediaPipe's C++ logs go to descriptor 2; progress bars and messages go through sys.stderr."""
+    import subprocess
+    import sys
+
+    code = (
+        "import os, sys\n"
+        "from pghm.capture.frontend import native_logs_silenced\n"
+        "with native_logs_silenced():\n"
+        "    os.write(2, b'native log\\n')\n"
+        "    print('python message', file=sys.stderr)\n"
+        "os.write(2, b'after\\n')\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert result.stderr.splitlines() == ["python message", "after"]

@@ -63,7 +63,9 @@ def test_every_frame_in_order(tmp_path):
     assert [frame_number(image) for _, image in frames] == list(range(12))
 
 
-@pytest.mark.parametrize("every, max_frames, expected", [(3, None, [0, 3, 6, 9]), (2, 3, [0, 2, 4]), (5, 10, [0, 5, 10])])
+@pytest.mark.parametrize(
+    "every, max_frames, expected", [(3, None, [0, 3, 6, 9]), (2, 3, [0, 2, 4]), (5, 10, [0, 5, 10])]
+)
 def test_stride_and_max_frames(tmp_path, every, max_frames, expected):
     source = open_source(write_video(tmp_path / "numbered.mp4", numbered_frames(12)))
     frames = read(source, every=every, max_frames=max_frames)

@@ -16,6 +16,7 @@ The objective, over frames f and body landmarks l (:mod:`pghm.capture.landmarks`
       + w_cov  sum_m rho(min_v |pi(v_fv) - m_fm| / h)               mask pixels the body misses
       + w_acc  sum |p_f-1 - 2 p_f + p_f+1|^2                        temporal smoothness
       + w_pose |theta|^2 + w_limit relu(hinge outside its range)^2  pose prior, joint limits
+      + w_shape |s - s_average|^2                                   shape prior
 
 with pi the pinhole projection, c the landmark confidences, h the person's height in
 pixels, rho(r) = r^2 / (r^2 + sigma^2) (Geman-McClure), X MediaPipe's world landmarks
@@ -47,7 +48,7 @@ from scipy.ndimage import distance_transform_edt
 from torch import Tensor
 
 from pghm.body import BodyModel, load_body
-from pghm.body.skinning import forward_kinematics, kinematic_levels
+from pghm.body.skinning import forward_kinematics, kinematic_levels, lbs
 from pghm.capture.landmarks import BODY_LANDMARKS, LANDMARK_NAMES, NUM_LANDMARKS, landmark_regressor
 from pghm.errors import PghmError
 
@@ -76,7 +77,12 @@ FITTED_JOINTS = (
 """Canonical joints whose rotation is fitted (besides the root); hands, toes, face and the
 limbs' twist bones stay at rest."""
 
-HINGES = {"left_elbow": "left_shoulder", "right_elbow": "right_shoulder", "left_knee": "left_hip", "right_knee": "right_hip"}
+HINGES = {
+    "left_elbow": "left_shoulder",
+    "right_elbow": "right_shoulder",
+    "left_knee": "left_hip",
+    "right_knee": "right_hip",
+}
 """Hinge joint -> the joint heading the segment before it. The hinge turns about
 d x z / |d x z|, d that segment's rest direction (the synthetic poses' forward swing)."""
 
@@ -128,25 +134,33 @@ class BodyFitConfig:
     min_confidence: float = 0.3
     """Landmarks below this confidence are ignored."""
 
-    robust_sigma: float = 0.03
+    robust_sigma: float = 0.06
     """Geman-McClure scale of the 2D terms, as a fraction of the person's height."""
 
     weight_2d: float = 1.0
-    weight_3d: float = 0.5
+    weight_3d: float = 2.0
     huber_3d_m: float = 0.05
     weight_outside: float = 1.0
     weight_coverage: float = 0.3
-    weight_smooth: float = 20.0
+    weight_smooth: float = 100.0
     weight_pose: float = 0.002
     weight_limits: float = 1.0
     weight_focal: float = 0.1
-    """Weights of the objective's terms (module docstring); weight_focal pulls log f to the default."""
+    weight_shape: float = 1.0
+    """Weights of the objective's terms (module docstring); weight_focal pulls log f to the
+    default, weight_shape the phenotypes to Anny's average (MediaPipe's landmarks over
+    clothes hardly tell the shape: without it the walker of the mono preset's seed 4 came
+    out far heavier, weight 0.85 for a true 0.38, at the same joint error)."""
 
     silhouette_vertices: int = 600
     """Mesh vertices (an even subsample) tested against the mask."""
 
     coverage_samples: int = 64
     """Mask pixels per frame that the body should cover."""
+
+    silhouette_frames: int = 16
+    """Frames (drawn at random each step) on which the mask terms are evaluated: the shape
+    they mostly inform is shared, and their cost stays independent of the video's length."""
 
     mask_size: int = 128
     """Longest side (pixels) at which the masks are compared."""
@@ -155,6 +169,8 @@ class BodyFitConfig:
     """Random subsampling of vertices and mask pixels."""
 
     def validate(self) -> BodyFitConfig:
+        if self.body != "anny":
+            raise PghmError(f"body fit: only the anny body has a measured landmark correspondence, got {self.body!r}")
         if not 10.0 <= self.default_fov_deg <= 150.0:
             raise PghmError(f"body fit: default_fov_deg must be 10 to 150 degrees, got {self.default_fov_deg}")
         if len(self.steps) != 3 or min(self.steps) < 0:
@@ -257,7 +273,8 @@ def _check(observations: Observations) -> int:
             raise PghmError(f"body fit: observations.{name} has shape {value.shape}, expected {shape}")
         if name != "masks" and not np.isfinite(value).all():
             bad = np.unique(np.nonzero(~np.isfinite(value))[0])
-            raise PghmError(f"body fit: observations.{name} is not finite in frames {observations.frame_index[bad].tolist()}")
+            frames_bad = np.asarray(observations.frame_index)[bad].tolist()
+            raise PghmError(f"body fit: observations.{name} is not finite in frames {frames_bad}")
     return frames
 
 
@@ -269,15 +286,11 @@ def _prepare(observations: Observations, config: BodyFitConfig, rng: np.random.G
     world3d = torch.as_tensor(np.asarray(observations.landmarks_3d, np.float32)[:, index]) @ torch.as_tensor(
         CAMERA_LOOK, dtype=torch.float32
     )
-    visible = weights > 0
-    spans = [
-        float((p[v, 1].max() - p[v, 1].min()).clamp_min(p[v, 0].max() - p[v, 0].min())) if v.sum() > 2 else np.nan
-        for p, v in zip(points, visible)
-    ]
     masks = np.asarray(observations.masks, bool)
-    mask_heights = [np.ptp(np.nonzero(m.any(1))[0]) + 1 if m.any() else np.nan for m in masks]
-    height_px = float(np.nanmedian(mask_heights + spans)) if np.isfinite(mask_heights + spans).any() else 1.0
-    height_px = max(height_px, 1.0)
+    heights = [np.ptp(np.nonzero(m.any(1))[0]) + 1 for m in masks if m.any()]
+    if not heights:  # no mask anywhere: the landmarks' vertical extent
+        heights = [float(p[v, 1].max() - p[v, 1].min()) for p, v in zip(points, weights > 0) if v.sum() > 2]
+    height_px = max(float(np.median(heights)) if heights else 1.0, 1.0)
 
     step = max(1, int(np.ceil(max(masks.shape[1:]) / config.mask_size)))
     small = masks[:, ::step, ::step]
@@ -311,6 +324,7 @@ class _ShapeModel:
     """
 
     STEP = 0.05
+    """Phenotype step of the forward differences (Anny blends its targets piecewise linearly)."""
 
     def __init__(self, body: BodyModel, vertices: Tensor, bones: list[int]) -> None:
         self.body, self.vertices, self.bones = body, vertices, bones
@@ -366,6 +380,18 @@ def fit_body(observations: Observations, config: BodyFitConfig | None = None) ->
         the fit, F frames in the observations' order.
     """
     config = (config or BodyFitConfig()).validate()
+    threads = torch.get_num_threads()
+    # The tensors are small (F x ~800 points): with two threads each of the thousands of
+    # small ops waits on the other, and on a loaded 2-core machine the fit of 300 frames
+    # took 527 s instead of 20 s with one.
+    torch.set_num_threads(1)
+    try:
+        return _fit(observations, config)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
     frames = _check(observations)
     rng = np.random.default_rng(config.seed)
     body = load_body(config.body)
@@ -396,18 +422,24 @@ def fit_body(observations: Observations, config: BodyFitConfig | None = None) ->
     log_focal = torch.tensor(np.log(focal0), dtype=torch.float32, requires_grad=True)
     fit_focal = observations.K is None and config.fit_focal
 
-    def landmarks_and_vertices(rotvecs: Tensor, translation: Tensor, shape: Tensor) -> tuple[Tensor, Tensor]:
+    num_marks = regressor_index.numel()
+
+    def posed(
+        rotvecs: Tensor, translation: Tensor, shape: Tensor, subset: Tensor | None = None
+    ) -> tuple[Tensor, Tensor]:
+        """(F, L, 3) world landmarks, and (F_subset, N, 3) silhouette vertices of the frames ``subset``."""
         rest_vertices, rest_joints = shape_model(shape)
-        transforms = forward_kinematics(roma.rotvec_to_rotmat(rotvecs), rest_joints, translation, skeleton.parents, levels)
-        identity = torch.eye(3, 4)
-        deltas = (weights @ (transforms[..., :3, :] - identity).reshape(frames, -1, 12)).reshape(frames, -1, 3, 4)
-        posed = rest_vertices + (deltas[..., :3] @ rest_vertices[..., None])[..., 0] + deltas[..., 3]
-        marks = posed[:, : regressor_index.numel()].reshape(frames, num_land, -1, 3)
-        return (regressor_weights[None, ..., None] * marks).sum(-2), posed[:, regressor_index.numel() :]
+        rotmats = roma.rotvec_to_rotmat(rotvecs)
+        transforms = forward_kinematics(rotmats, rest_joints, translation, skeleton.parents, levels)
+        marks = lbs(rest_vertices[:num_marks], weights[:num_marks], transforms).reshape(frames, num_land, -1, 3)
+        marks = (regressor_weights[None, ..., None] * marks).sum(-2)
+        if subset is None:
+            return marks, marks[:0]
+        return marks, lbs(rest_vertices[num_marks:], weights[num_marks:], transforms[subset])
 
     # Initialisation: root rotation from MediaPipe's torso (Procrustes against the rest
     # body's torso landmarks), root position from the 2D-3D correspondence at the default focal.
-    rest_marks, _ = landmarks_and_vertices(torch.zeros(frames, len(skeleton.bones), 3), torch.zeros(frames, 3), shape0)
+    rest_marks, _ = posed(torch.zeros(frames, len(skeleton.bones), 3), torch.zeros(frames, 3), shape0)
     rest_rel = rest_marks - rest_marks[:, hips].mean(1, keepdim=True)
     torso_w = data.weights[:, torso] + 1e-3
     rotation0 = _procrustes_rotation(rest_rel[:, torso], data.world3d[:, torso], torso_w)
@@ -431,7 +463,10 @@ def fit_body(observations: Observations, config: BodyFitConfig | None = None) ->
     def objective(stage: int) -> tuple[Tensor, dict[str, Tensor]]:
         shape = torch.sigmoid(shape_logit)
         rotvecs = torch.cat([root[:, None], pose if stage > 0 else torch.zeros_like(pose)], 1)
-        marks, verts = landmarks_and_vertices(rotvecs, translation, shape)
+        subset = None
+        if stage > 1:
+            subset = torch.as_tensor(rng.choice(frames, min(frames, config.silhouette_frames), replace=False))
+        marks, verts = posed(rotvecs, translation, shape, subset)
         focal = log_focal.exp()
         pixels = _project(marks, focal, centre, camera)
         sigma = config.robust_sigma
@@ -440,13 +475,15 @@ def fit_body(observations: Observations, config: BodyFitConfig | None = None) ->
         used = data.weights if stage > 0 else data.weights * torch.isin(torch.arange(num_land), torch.tensor(torso))
         terms = {"2d": config.weight_2d * (used * _geman_mcclure(squared, sigma)).sum() / frames}
         relative = marks - marks[:, hips].mean(1, keepdim=True)
-        error3d = torch.nn.functional.huber_loss(relative, data.world3d, reduction="none", delta=config.huber_3d_m).sum(-1)
+        error3d = torch.nn.functional.huber_loss(relative, data.world3d, reduction="none", delta=config.huber_3d_m)
+        error3d = error3d.sum(-1)
         terms["3d"] = config.weight_3d * (used * error3d).sum() / frames / config.huber_3d_m
         if fit_focal:
             terms["focal"] = config.weight_focal * (log_focal - np.log(focal0)) ** 2
         if stage > 0:
             if frames > 2:
-                accel = (marks[2:] - 2 * marks[1:-1] + marks[:-2]) / data.gaps[1:, None, None] / data.gaps[:-1, None, None]
+                gaps = data.gaps[1:, None, None] * data.gaps[:-1, None, None]
+                accel = (marks[2:] - 2 * marks[1:-1] + marks[:-2]) / gaps
                 terms["smooth"] = config.weight_smooth * (accel**2).sum() / frames
             hinge = (pose[:, hinge_rows] * skeleton.hinge_axes).sum(-1)
             terms["pose"] = config.weight_pose * (prior[:, None] * pose**2).sum() / frames
@@ -454,15 +491,21 @@ def fit_body(observations: Observations, config: BodyFitConfig | None = None) ->
             limits = torch.relu(hinge_low - hinge) + torch.relu(hinge - hinge_high)
             terms["limits"] = config.weight_limits * ((limits**2).sum() + (twist**2).sum()) / frames
         if stage > 1:
+            terms["shape"] = config.weight_shape * ((shape - shape0) ** 2).sum()
             vpix = _project(verts, focal, centre, camera)
             h, w = data.outside.shape[-2:]
-            step = max(height, width) / max(h, w)
-            grid = torch.stack([vpix[..., 0] / (step * w), vpix[..., 1] / (step * h)], -1) * 2 - 1
-            outside = torch.nn.functional.grid_sample(data.outside, grid[:, None], align_corners=False, padding_mode="border")
-            terms["outside"] = config.weight_outside * (outside[:, 0, 0] / data.height_px).mean(1).sum() / frames
-            nearest = torch.cdist(data.inside, vpix).min(-1).values / data.height_px
-            cover = _geman_mcclure(nearest**2, sigma) * data.inside_valid
-            terms["coverage"] = config.weight_coverage * cover.mean(1).sum() / frames
+            cell = max(height, width) / max(h, w)  # full-size pixels per distance-map pixel
+            grid = torch.stack([vpix[..., 0] / (cell * w), vpix[..., 1] / (cell * h)], -1) * 2 - 1
+            outside = torch.nn.functional.grid_sample(
+                data.outside[subset], grid[:, None], align_corners=False, padding_mode="border"
+            )
+            terms["outside"] = config.weight_outside * (outside[:, 0, 0] / data.height_px).mean()
+            inside = data.inside[subset]
+            with torch.no_grad():  # only the nearest vertex of each mask pixel carries gradient
+                nearest = torch.cdist(inside, vpix).argmin(-1)
+            gap = (inside - torch.gather(vpix, 1, nearest[..., None].expand(-1, -1, 2))).square().sum(-1)
+            cover = _geman_mcclure(gap / data.height_px**2, sigma) * data.inside_valid[subset]
+            terms["coverage"] = config.weight_coverage * cover.mean()
         return sum(terms.values()), terms
 
     stages = [
@@ -487,7 +530,7 @@ def fit_body(observations: Observations, config: BodyFitConfig | None = None) ->
         rotations = torch.zeros(frames, body.num_bones, 3)
         rotations[:, skeleton.bones] = torch.cat([root[:, None], pose], 1)
         focal = float(log_focal.exp())
-        marks, _ = landmarks_and_vertices(torch.cat([root[:, None], pose], 1), translation, shape)
+        marks, _ = posed(torch.cat([root[:, None], pose], 1), translation, shape)
         pixels = _project(marks, log_focal.exp(), centre, camera)
         visible = data.weights > 0
         error_px = float((pixels - data.points).norm(dim=-1)[visible].mean()) if visible.any() else float("nan")
@@ -495,7 +538,8 @@ def fit_body(observations: Observations, config: BodyFitConfig | None = None) ->
         offset = translation.mean(0)
         camera_out = camera.clone()
         camera_out[:3, 3] = camera[:3, 3] + camera[:3, :3] @ offset
-        K_out = np.array([[focal, 0.0, float(centre[0])], [0.0, focal, float(centre[1])], [0.0, 0.0, 1.0]], np.float32)  # noqa: N806
+        cx, cy = float(centre[0]), float(centre[1])
+        K_out = np.array([[focal, 0.0, cx], [0.0, focal, cy], [0.0, 0.0, 1.0]], np.float32)  # noqa: N806
         residuals = {f"term_{k}": float(v) for k, v in terms.items()}
         residuals["landmark_error_px"] = error_px
         residuals["person_height_px"] = data.height_px

@@ -135,10 +135,11 @@ def native_logs_silenced() -> Iterator[None]:
     except (AttributeError, OSError, ValueError):  # a captured or replaced sys.stderr
         on_descriptor = False
     try:
-        with open(os.devnull, "wb") as null:
-            os.dup2(null.fileno(), 2)
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 2)
+        os.close(null)
         if on_descriptor:
-            sys.stderr = open(os.dup(saved), "w", buffering=1, encoding=python_stderr.encoding, errors="backslashreplace")
+            sys.stderr = os.fdopen(os.dup(saved), "w", buffering=1, encoding=python_stderr.encoding, errors="replace")
         yield
     finally:
         if sys.stderr is not python_stderr:
@@ -202,7 +203,8 @@ class PoseEstimator:
         confidence = visibility * presence if presence.any() else visibility
         world = np.array([[p.x, p.y, p.z] for p in result.pose_world_landmarks.landmark], dtype=np.float32)
         mask = np.zeros((height, width), dtype=bool)
-        mask[y0:y1, x0:x1] = person_components(result.segmentation_mask >= MASK_THRESHOLD, landmarks_2d - [x0, y0], confidence)
+        segmentation = result.segmentation_mask >= MASK_THRESHOLD
+        mask[y0:y1, x0:x1] = person_components(segmentation, landmarks_2d - [x0, y0], confidence)
         box = detection_box(mask, landmarks_2d, confidence)
         if box is None:
             return None
@@ -267,7 +269,8 @@ def consistent(box: Box, previous: Box, frames_lost: int) -> bool:
     shift = np.hypot(*((box[:2] + box[2:]) / 2 - (previous[:2] + previous[2:]) / 2))
     slack = 1 + frames_lost
     ratio = diagonal / max(previous_diagonal, 1e-9)
-    return bool(shift <= MAX_SHIFT * previous_diagonal * slack and MAX_SCALE_CHANGE ** (-slack) <= ratio <= MAX_SCALE_CHANGE**slack)
+    near = shift <= MAX_SHIFT * previous_diagonal * slack
+    return bool(near and MAX_SCALE_CHANGE ** (-slack) <= ratio <= MAX_SCALE_CHANGE**slack)
 
 
 def _windows(width: int, height: int) -> list[Box]:

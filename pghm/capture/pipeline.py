@@ -60,10 +60,14 @@ def _warn(message: str) -> None:
     print(f"pghm: warning: {message}", file=sys.stderr)
 
 
-def test_split(count: int, test_every: int) -> tuple[list[int], list[int]]:
+def split_indices(count: int, test_every: int) -> tuple[list[int], list[int]]:
     """(train, test) image indices: images test_every - 1, 2 test_every - 1, ... are the test split."""
     test = [i for i in range(count) if (i + 1) % test_every == 0]
     return [i for i in range(count) if (i + 1) % test_every != 0], test
+
+
+def _bar(config: CaptureConfig, total: int | None, stage: str) -> tqdm:
+    return tqdm(total=total, desc=f"capture: {stage}", unit="frame", disable=not config.progress, file=sys.stderr)
 
 
 def _require_frames(name: str, found: int, read: int, lost: list[int], config: CaptureConfig) -> None:
@@ -88,7 +92,7 @@ def _track(source: VideoFile | ImageFolder, config: CaptureConfig) -> Track:
     if config.max_frames is not None:
         total = min(total or config.max_frames, config.max_frames)
     frames = source.frames(full, size, config.every, config.max_frames)
-    with tqdm(total=total, desc="capture: find person", unit="frame", disable=not config.progress, file=sys.stderr) as bar:
+    with _bar(config, total, "find person") as bar:
         track = track_person(frames, on_frame=bar.update)
     scale = np.array([source.width / size[1], source.height / size[0]] * 2)
     track.boxes = track.boxes * scale
@@ -120,7 +124,7 @@ def _observe(
     frames = source.frames(region, out_size, config.every, config.max_frames)
     with (
         PersonFinder() as find,
-        tqdm(total=count, desc="capture: masks, landmarks", unit="frame", disable=not config.progress, file=sys.stderr) as bar,
+        _bar(config, count, "masks, landmarks") as bar,
     ):
         for index, image in frames:
             if index in boxes:
@@ -239,9 +243,10 @@ def _write(folder: Path, config: CaptureConfig, front: FrontEnd) -> None:
     from pghm.capture.bodyfit import BodyFitConfig, fit_body
 
     observations = front.observations
-    fit = fit_body(observations, config.body or BodyFitConfig())
+    body_config = config.body or BodyFitConfig()
+    fit = fit_body(observations, body_config)
     n = len(observations.frame_index)
-    train, test = test_split(n, config.test_every)
+    train, test = split_indices(n, config.test_every)
     height, width = observations.image_size
     arrays = SubjectArrays(
         K=np.repeat(fit.K[None], n, axis=0),
@@ -251,8 +256,8 @@ def _write(folder: Path, config: CaptureConfig, front: FrontEnd) -> None:
         rotations=fit.rotations,
         translation=fit.translation,
         shape=fit.shape,
-        body="anny",
-        bone_names=list(load_body("anny").bone_names),
+        body=body_config.body,
+        bone_names=list(load_body(body_config.body).bone_names),
         splits={"train": train, "test": test},
         frame_index=observations.frame_index,
         view_index=np.zeros(n, dtype=np.int32),
