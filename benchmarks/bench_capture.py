@@ -471,7 +471,8 @@ def speed_case(work: Path, frames: int) -> dict:
     ru_maxrss, kB, of the child and the ffmpeg readers it waited for).
     """
     video = work / f"speed_{frames}f.mp4"
-    render_walk_video(walk_config(frames, *SIZE), 0, video, background("plain", 0, *SIZE), progress=True)
+    if not video.exists():  # a --keep folder's video is reused: it is only read here
+        render_walk_video(walk_config(frames, *SIZE), 0, video, background("plain", 0, *SIZE), progress=True)
     load = load_average()
     log = work / f"speed_{frames}f.log"
     command = [sys.executable, str(Path(__file__).resolve()), "--stages", str(video), str(work / f"speed_{frames}f")]
