@@ -23,6 +23,7 @@ import os
 import queue
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -39,7 +40,7 @@ from pghm.data.synth.config import SynthConfig
 from pghm.data.synth.identity import Identity, sample_identity
 from pghm.data.synth.poses import MOTION_KINDS, WALK_SPEED, add_pose_noise, motion_clip, place_on_path
 from pghm.data.synth.regions import Landmarks
-from pghm.data.synth.render import Lighting, MeshRenderer
+from pghm.data.synth.render import Lighting, MeshRenderer, RenderedView
 from pghm.errors import PghmError
 
 GENERATOR_VERSION = "1.0"
@@ -384,11 +385,11 @@ def release_worker_gl() -> None:
         _WORKER.pop("ctx").release()  # type: ignore[union-attr]
 
 
-def render_images(config: SynthConfig, plan: SubjectPlan, directory: Path, frames: list[int], progress=None) -> int:
-    """Paint ``plan``'s identity and render its images of time steps ``frames`` into ``directory``.
+def render_views(config: SynthConfig, plan: SubjectPlan, frames: list[int]) -> Iterator[tuple[int, RenderedView]]:
+    """Paint ``plan``'s identity and render its images of time steps ``frames``, in order.
 
-    Images sharing a time step share one posing. Returns the number of images written;
-    ``progress`` (a callable taking a count) is told after each image.
+    Images sharing a time step share one posing. Yields (image index, view) pairs; the
+    view's arrays are fresh per image.
     """
     body = load_body(plan.arrays.body)
     clothed = build_clothed_body(body, plan.identity, config.texture_size, config.cloth_geometry, config.wrinkles)
@@ -396,7 +397,6 @@ def render_images(config: SynthConfig, plan: SubjectPlan, directory: Path, frame
     renderer.set_textures(clothed.albedo, clothed.wrinkles)
     a = plan.arrays
     by_frame = {f: np.flatnonzero(a.frame_index == f).tolist() for f in frames}
-    written = 0
     for start in range(0, len(frames), POSE_BATCH):
         batch = frames[start : start + POSE_BATCH]
         rows = [by_frame[f][0] for f in batch]
@@ -408,11 +408,21 @@ def render_images(config: SynthConfig, plan: SubjectPlan, directory: Path, frame
         for k, frame in enumerate(batch):
             renderer.set_geometry(positions[k], normals[k])
             for i in by_frame[frame]:
-                view = renderer.render(a.K[i], a.world_to_camera[i], plan.lighting, amplitudes[k])
-                write_image(directory, i, view.rgb, view.mask, config.png_compression)
-                written += 1
-                if progress is not None:
-                    progress(1)
+                yield i, renderer.render(a.K[i], a.world_to_camera[i], plan.lighting, amplitudes[k])
+
+
+def render_images(config: SynthConfig, plan: SubjectPlan, directory: Path, frames: list[int], progress=None) -> int:
+    """Render ``plan``'s images of time steps ``frames`` (:func:`render_views`) into ``directory``.
+
+    Returns the number of images written; ``progress`` (a callable taking a count) is told
+    after each image.
+    """
+    written = 0
+    for i, view in render_views(config, plan, frames):
+        write_image(directory, i, view.rgb, view.mask, config.png_compression)
+        written += 1
+        if progress is not None:
+            progress(1)
     return written
 
 

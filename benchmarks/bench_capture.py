@@ -1,0 +1,619 @@
+"""``pghm capture`` against the synthetic generator's truth (issue 22, "How it is measured").
+
+Synthetic monocular walks (:mod:`pghm.data.synth.video`) are encoded as H.264 videos with
+the person over two kinds of background, captured with ``pghm capture`` (defaults: the
+focal length is estimated), and the subjects compared with the truth, per seed x background:
+
+a. mask IoU against the true masks (mean over the video's frames; a dropped frame counts
+   as IoU 0): >= 0.95 plain, >= 0.90 cluttered;
+b. root-relative MPJPE and PA-MPJPE (per-frame similarity Procrustes) of the canonical
+   joints (Anny's 20 of the 22), each body in its own camera's coordinates: <= 80 mm and <= 50 mm;
+c. 2D error of the canonical joints projected by each camera, in source-video pixels, as
+   % of the person's height in that frame (the true mask's extent): <= 2 %;
+d. with ``--fit``: ``pghm fit`` (defaults, assets/prior.pt) on the captured subject and on
+   the same frames with the true masks, poses and cameras (same crop, same split); each
+   evaluated on its own test frames; the captured one within 1.5 dB PSNR;
+e. speed and memory of the pipeline on a 300-frame 512-px video (a child process running
+   the front end and the body fit, timed apart; its peak resident memory): <= 120 s, <= 2 GB.
+
+Backgrounds: "plain" is a gentle vertical gradient between two muted colours (a wall and
+a floor); "cluttered" is a photograph without people or animals, shipped inside the
+scikit-image wheel (no download): a garage with a motorcycle, a rocket on its launch pad,
+a cup of coffee on a wooden table (one per seed).
+
+    python benchmarks/bench_capture.py [--seeds 0 1 2] [--frames 100] [--fit [plain_0 ...]] [--keep DIR]
+                                       [--backgrounds plain cluttered] [--results bench_capture]
+
+Prints the table, writes benchmarks/results/bench_capture.json and docs/capture_bench*.png
+(other names with --results, e.g. for a --fit run made apart from the table).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from common import DOCS, RESULTS, ROOT, load_average, print_table, write_json
+from PIL import Image
+
+from pghm.capture.crop import Region, crop_intrinsics, from_region
+from pghm.data.subject import Subject, check, read_mask
+from pghm.data.synth.video import WalkTruth, graded_background, render_walk_video, walk_config
+
+TARGETS = {
+    "iou_plain": 0.95,
+    "iou_cluttered": 0.90,
+    "mpjpe_mm": 80.0,
+    "pa_mpjpe_mm": 50.0,
+    "reproj_pct": 2.0,
+    "psnr_gap_db": 1.5,
+    "seconds_300": 120.0,
+    "peak_gb": 2.0,
+}
+BACKGROUNDS = ("plain", "cluttered")
+PLAIN_COLOURS = (
+    ((118, 128, 138), (168, 156, 136)),
+    ((150, 132, 120), (92, 100, 96)),
+    ((96, 118, 104), (184, 176, 160)),
+)
+"""Top and bottom colours of the plain gradient, per seed (cycled): muted walls and floors."""
+PHOTOGRAPHS = ("motorcycle", "rocket", "coffee")
+"""scikit-image's bundled colour photographs without a person or animal, per seed (cycled)."""
+SPEED_FRAMES = 300
+SIZE = (512, 384)
+"""Width, height of the videos: the "mono" preset's (landscape, as phone videos)."""
+PRIOR = ROOT / "assets" / "prior.pt"
+BYTES_PER_GB = 1e9
+KB = 1024
+"""ru_maxrss is in kilobytes on Linux."""
+
+
+def photograph(name: str) -> np.ndarray:
+    """(h, w, 3) uint8 photograph ``name`` of :data:`PHOTOGRAPHS` from scikit-image's wheel."""
+    import skimage.data
+
+    if name == "motorcycle":
+        return skimage.data.stereo_motorcycle()[0]
+    return getattr(skimage.data, name)()
+
+
+def cover(image: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(H, W, 3) uint8: ``image`` scaled to cover W x H, centre-cropped."""
+    h, w = image.shape[:2]
+    scale = max(width / w, height / h)
+    size = (max(width, round(w * scale)), max(height, round(h * scale)))
+    scaled = np.asarray(Image.fromarray(image).resize(size, Image.Resampling.LANCZOS))
+    top, left = (size[1] - height) // 2, (size[0] - width) // 2
+    return np.ascontiguousarray(scaled[top : top + height, left : left + width])
+
+
+def background(kind: str, seed: int, width: int, height: int) -> np.ndarray:
+    if kind == "plain":
+        top, bottom = PLAIN_COLOURS[seed % len(PLAIN_COLOURS)]
+        return graded_background(top, bottom, width, height)
+    return cover(photograph(PHOTOGRAPHS[seed % len(PHOTOGRAPHS)]), width, height)
+
+
+# ------------------------------------------------------------------ running pghm capture
+
+
+@dataclass(frozen=True)
+class CaptureRun:
+    """One ``pghm capture`` child process: its subject, wall time and peak resident memory."""
+
+    subject: Path
+    seconds: float
+    peak_gb: float
+
+
+def run_capture(video: Path, out: Path, log: Path, options: tuple[str, ...] = ()) -> CaptureRun:
+    """``pghm capture VIDEO --out OUT`` in a child process, so its peak memory is its own.
+
+    ``os.wait4`` gives the child's resource usage: ru_maxrss (kB) is the largest resident
+    set of the child and the processes it waited for (the ffmpeg reader).
+    """
+    command = [sys.executable, "-m", "pghm.cli.main", "capture", str(video), "--out", str(out), *options]
+    started = time.perf_counter()
+    with open(log, "w") as sink:
+        process = subprocess.Popen(command, stdout=sink, stderr=sink)
+        _, status, usage = os.wait4(process.pid, 0)
+    seconds = time.perf_counter() - started
+    code = os.waitstatus_to_exitcode(status)
+    if code != 0:
+        tail = log.read_text()[-1500:]
+        raise RuntimeError(f"pghm capture failed on {video.name} (status {code}):\n{tail}")
+    return CaptureRun(out, seconds, usage.ru_maxrss * KB / BYTES_PER_GB)
+
+
+# ------------------------------------------------------------------ subject pixels <-> video pixels
+
+
+@dataclass(frozen=True)
+class Crop:
+    """The capture's crop (``pghm.capture.crop``): ``region`` of the video frame resized to ``size`` (H', W')."""
+
+    region: Region
+    size: tuple[int, int]
+
+    @classmethod
+    def of(cls, subject: Subject) -> Crop:
+        """The crop recorded in the subject's meta.json; the images' size."""
+        crop = subject.meta["crop"]
+        region = Region(int(crop["x"]), int(crop["y"]), int(crop["width"]), int(crop["height"]))
+        return cls(region, (int(subject.arrays.height[0]), int(subject.arrays.width[0])))
+
+    def to_source(self, points: np.ndarray) -> np.ndarray:
+        """(..., 2) subject pixel positions -> source-video pixel positions."""
+        return from_region(points, self.region, self.size)
+
+    def to_subject_K(self, K: np.ndarray) -> np.ndarray:  # noqa: N802, N803
+        """(n, 3, 3) source intrinsics -> the subject images'."""
+        return np.stack([crop_intrinsics(k, self.region, self.size) for k in K])
+
+    def box(self) -> tuple[int, int, int, int]:
+        r = self.region
+        return r.x, r.y, r.x + r.width, r.y + r.height
+
+    def mask_to_source(self, mask: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+        """(H, W) bool source-video mask of a (H', W') subject mask (nearest resampling)."""
+        r = self.region
+        pasted = Image.fromarray(mask.astype(np.uint8) * 255).resize((r.width, r.height), Image.Resampling.NEAREST)
+        out = np.zeros(size, dtype=bool)
+        out[r.y : r.y + r.height, r.x : r.x + r.width] = np.asarray(pasted) > 0
+        return out
+
+    def image_to_subject(self, image: np.ndarray) -> np.ndarray:
+        """(H', W', ...) the crop of a source image or bool mask, resized (bilinear; nearest for masks)."""
+        is_mask = image.dtype == bool
+        pixels = image.astype(np.uint8) * 255 if is_mask else image
+        resample = Image.Resampling.NEAREST if is_mask else Image.Resampling.BILINEAR
+        region = Image.fromarray(pixels).crop(self.box()).resize(self.size[::-1], resample)
+        return np.asarray(region) > 0 if is_mask else np.asarray(region)
+
+
+# ------------------------------------------------------------------ measuring against the truth
+
+
+def read_video(path: Path, frames: set[int]) -> dict[int, np.ndarray]:
+    """Decoded (H, W, 3) uint8 frames of the video at the indices ``frames``."""
+    import imageio_ffmpeg
+
+    reader = imageio_ffmpeg.read_frames(str(path))
+    width, height = next(reader)["size"]
+    return {
+        i: np.frombuffer(raw, dtype=np.uint8).reshape(height, width, 3).copy()
+        for i, raw in enumerate(reader)
+        if i in frames
+    }
+
+
+def person_height_px(masks: np.ndarray) -> np.ndarray:
+    """(F,) rows spanned by each (F, H, W) mask, top of the first to bottom of the last row."""
+    rows = masks.any(axis=2)
+    first = rows.argmax(axis=1)
+    last = rows.shape[1] - rows[:, ::-1].argmax(axis=1)
+    return (last - first).astype(np.float64)
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """A captured subject against the truth, in source-video pixels.
+
+    Attributes:
+        frames: (n,) source frame of each captured image.
+        crop: the capture's crop.
+        true_uv: (n, N, 2) true canonical joints projected by the true camera.
+        captured_uv: (n, N, 2) captured joints projected by the captured camera, mapped to source pixels.
+        metrics: the summary (a-c) and per-frame values.
+    """
+
+    frames: np.ndarray
+    crop: Crop
+    true_uv: np.ndarray
+    captured_uv: np.ndarray
+    metrics: dict
+
+
+def measure(truth: WalkTruth, subject_dir: Path) -> Comparison:
+    """Metrics a-c of the module docstring for one captured subject."""
+    from pghm.body import load_body
+    from pghm.capture.metrics import camera_joints, error_2d_percent, mapped_joints, mpjpe, pa_mpjpe, project
+    from pghm.data.subject import image_name
+
+    subject = Subject.open(subject_dir)
+    a, t = subject.arrays, truth.arrays
+    frames = np.asarray(a.frame_index, dtype=np.int64)
+    crop = Crop.of(subject)
+    total, size = len(truth.masks), truth.masks.shape[1:]
+    ious = np.zeros(total)
+    for i, frame in enumerate(frames):
+        captured = crop.mask_to_source(read_mask(subject_dir / "masks" / image_name(i)) > 0.5, size)
+        true = truth.masks[frame]
+        ious[frame] = (captured & true).sum() / max((captured | true).sum(), 1)
+
+    body = load_body("anny")
+    root = mapped_joints(body)[0].index("pelvis")
+    true_cam = camera_joints(
+        body, t.shape, t.rotations_true[frames], t.translation_true[frames], t.world_to_camera[frames]
+    )
+    cap_cam = camera_joints(body, a.shape, a.rotations, a.translation, a.world_to_camera)
+    true_uv = project(true_cam, t.K[frames])
+    cap_uv = crop.to_source(project(cap_cam, a.K))
+    height = person_height_px(truth.masks[frames])
+    per_frame = [
+        (
+            mpjpe(cap_cam[[k]], true_cam[[k]], root),
+            pa_mpjpe(cap_cam[[k]], true_cam[[k]]),
+            error_2d_percent(cap_uv[[k]], true_uv[[k]], height[[k]]),
+        )
+        for k in range(len(frames))
+    ]
+    mpjpe_m, pa_mpjpe_m, reproj_pct = (np.array(column) for column in zip(*per_frame))
+    metrics = {
+        "frames": total,
+        "kept": len(frames),
+        "iou": float(ious.mean()),
+        "iou_kept": float(ious[frames].mean()),
+        "mpjpe_mm": float(1000 * mpjpe_m.mean()),
+        "pa_mpjpe_mm": float(1000 * pa_mpjpe_m.mean()),
+        "reproj_pct": float(reproj_pct.mean()),
+        "per_frame": {
+            "frame": frames.tolist(),
+            "iou": ious[frames].round(4).tolist(),
+            "mpjpe_mm": (1000 * mpjpe_m).round(1).tolist(),
+            "pa_mpjpe_mm": (1000 * pa_mpjpe_m).round(1).tolist(),
+            "reproj_pct": reproj_pct.round(2).tolist(),
+        },
+    }
+    return Comparison(frames, crop, true_uv, cap_uv, metrics)
+
+
+# ------------------------------------------------------------------ d. the avatar fitted on the capture
+
+
+def reference_subject(truth: WalkTruth, video: Path, captured_dir: Path, out: Path) -> Path:
+    """The captured subject's frames, crop and split with the true masks, poses and cameras.
+
+    Images are the decoded video frames (the same compression) composited on white
+    through the true masks, cropped as the capture cropped; K is the true intrinsics
+    through the crop, world_to_camera the true (moving) camera.
+    """
+    from pghm.data.subject import SubjectArrays, write_image, write_subject
+
+    captured = Subject.open(captured_dir)
+    a, t = captured.arrays, truth.arrays
+    frames = np.asarray(a.frame_index, dtype=np.int64)
+    crop = Crop.of(captured)
+    decoded = read_video(video, set(frames.tolist()))
+    for i, frame in enumerate(frames):
+        mask = crop.image_to_subject(truth.masks[frame])
+        rgb = np.where(mask[..., None], crop.image_to_subject(decoded[frame]), 255).astype(np.uint8)
+        write_image(out, i, rgb, mask.astype(np.uint8) * 255)
+    arrays = SubjectArrays(
+        K=crop.to_subject_K(t.K[frames]),
+        world_to_camera=t.world_to_camera[frames],
+        height=a.height,
+        width=a.width,
+        rotations=t.rotations_true[frames],
+        translation=t.translation_true[frames],
+        shape=t.shape,
+        body=t.body,
+        bone_names=t.bone_names,
+        splits=a.splits,
+        frame_index=frames,
+        view_index=np.zeros(len(frames), dtype=np.int64),
+    )
+    write_subject(out, arrays, {"source": "bench_capture reference: true masks, poses and cameras"})
+    return out
+
+
+def fit_and_eval(subject_dir: Path, avatar: Path) -> dict:
+    """``pghm fit`` (defaults, the shipped prior) then ``pghm eval --split test``: the summary and seconds."""
+    started = time.perf_counter()
+    pghm = [sys.executable, "-m", "pghm.cli.main"]
+    subprocess.run([*pghm, "fit", str(subject_dir), "--prior", str(PRIOR), "--out", str(avatar)], check=True)
+    fit_seconds = time.perf_counter() - started
+    report = avatar.with_suffix(".eval.json")
+    evaluate = [*pghm, "eval", str(avatar), str(subject_dir), "--split", "test", "--report", str(report)]
+    subprocess.run(evaluate, check=True)
+    summary = json.loads(report.read_text())["mean"]
+    return {"psnr": float(summary["psnr"]), "ssim": float(summary["ssim"]), "fit_seconds": round(fit_seconds, 1)}
+
+
+# ------------------------------------------------------------------ figures
+
+MASK_COLOURS = {"both": (255, 255, 255), "missed": (230, 60, 60), "extra": (60, 120, 240)}
+"""Mask comparison: true and captured (white), true only (red), captured only (blue)."""
+TRUE_COLOUR, CAPTURED_COLOUR = (40, 220, 90), (255, 60, 200)
+TILE_SCALE = 0.5
+"""Tiles of the frames figure at half the video's size."""
+
+
+def canonical_parents() -> list[int]:
+    """Parent of each canonical joint: its nearest canonical ancestor in the body's bone tree (-1: none)."""
+    from pghm.body import load_body
+    from pghm.capture.metrics import mapped_joints
+
+    body = load_body("anny")
+    names = mapped_joints(body)[0]
+    index = {body.joint_map[name]: k for k, name in enumerate(names)}
+    parents = []
+    for name in names:
+        bone = body.parents[body.joint_map[name]]
+        while bone >= 0 and bone not in index:
+            bone = body.parents[bone]
+        parents.append(index.get(bone, -1))
+    return parents
+
+
+def draw_skeleton(image: Image.Image, uv: np.ndarray, colour: tuple[int, int, int], parents: list[int]) -> None:
+    from PIL import ImageDraw
+
+    draw = ImageDraw.Draw(image)
+    for k, parent in enumerate(parents):
+        if parent >= 0:
+            draw.line([tuple(uv[k]), tuple(uv[parent])], fill=colour, width=2)
+        draw.ellipse([uv[k][0] - 2, uv[k][1] - 2, uv[k][0] + 2, uv[k][1] + 2], fill=colour)
+
+
+def frame_tiles(truth: WalkTruth, video: Path, subject_dir: Path, comparison: Comparison) -> np.ndarray:
+    """(h, 3 w, 3) uint8 of the middle captured frame: video | masks compared | joints (true, captured)."""
+    from pghm.data.subject import image_name
+
+    i = len(comparison.frames) // 2
+    frame = int(comparison.frames[i])
+    decoded = read_video(video, {frame})[frame]
+    true = truth.masks[frame]
+    captured = comparison.crop.mask_to_source(read_mask(subject_dir / "masks" / image_name(i)) > 0.5, true.shape)
+    masks = np.zeros_like(decoded)
+    for key, region in (("both", true & captured), ("missed", true & ~captured), ("extra", captured & ~true)):
+        masks[region] = MASK_COLOURS[key]
+    joints = Image.fromarray(decoded)
+    parents = canonical_parents()
+    draw_skeleton(joints, comparison.true_uv[i], TRUE_COLOUR, parents)
+    draw_skeleton(joints, comparison.captured_uv[i], CAPTURED_COLOUR, parents)
+    row = np.concatenate([decoded, masks, np.asarray(joints)], axis=1)
+    size = (round(row.shape[1] * TILE_SCALE), round(row.shape[0] * TILE_SCALE))
+    return np.asarray(Image.fromarray(row).resize(size, Image.Resampling.LANCZOS))
+
+
+def plot_metrics(rows: list[dict], path: Path) -> None:
+    """One panel per metric: each seed x background against its target."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = [f"{r['background']}\nseed {r['seed']}" for r in rows]
+    colours = ["#4c9be8" if r["background"] == "plain" else "#e8914c" for r in rows]
+    x = np.arange(len(rows))
+    panels = [
+        ("mask IoU", "iou", [("plain", TARGETS["iou_plain"]), ("cluttered", TARGETS["iou_cluttered"])], "higher"),
+        ("MPJPE (mm), root-relative", "mpjpe_mm", [("", TARGETS["mpjpe_mm"])], "lower"),
+        ("PA-MPJPE (mm)", "pa_mpjpe_mm", [("", TARGETS["pa_mpjpe_mm"])], "lower"),
+        ("2D joint error (% of height)", "reproj_pct", [("", TARGETS["reproj_pct"])], "lower"),
+    ]
+    figure, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.6))
+    for ax, (title, key, targets, better) in zip(axes, panels):
+        ax.bar(x, [r[key] for r in rows], color=colours)
+        for name, value in targets:
+            ax.axhline(value, color="k", linestyle="--", linewidth=1)
+            ax.text(len(rows) - 0.5, value, f" target {name}".rstrip(), va="bottom", ha="right", fontsize=8)
+        ax.set_title(f"{title} ({better} is better)", fontsize=10)
+        ax.set_xticks(x, labels, fontsize=7)
+        if key == "iou":
+            ax.set_ylim(min(0.8, min(r[key] for r in rows) - 0.02), 1.0)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+# ------------------------------------------------------------------ main
+
+
+def capture_case(work: Path, seed: int, kind: str, frames: int, fit: bool) -> tuple[dict, np.ndarray]:
+    """Video, capture, metrics (and the fits with ``fit``) of one seed x background: the row and its tiles."""
+    video = work / f"{kind}_{seed}_{frames}f.mp4"
+    config = walk_config(frames, *SIZE)
+    truth = render_walk_video(config, seed, video, background(kind, seed, *SIZE), progress=True)
+    subject_dir = work / f"{kind}_{seed}_{frames}f"
+    run = run_capture(video, subject_dir, work / f"{kind}_{seed}_{frames}f.log")
+    comparison = measure(truth, subject_dir)
+    row = {
+        "background": kind,
+        "seed": seed,
+        "frames": frames,
+        **{k: v for k, v in comparison.metrics.items() if k != "per_frame"},
+        "check_problems": len(check(subject_dir)),
+        "capture_s": round(run.seconds, 1),
+        "peak_gb": round(run.peak_gb, 2),
+        "per_frame": comparison.metrics["per_frame"],
+    }
+    if fit:
+        reference = reference_subject(truth, video, subject_dir, work / f"{kind}_{seed}_{frames}f_reference")
+        captured_fit = fit_and_eval(subject_dir, work / f"{kind}_{seed}_captured.pt")
+        reference_fit = fit_and_eval(reference, work / f"{kind}_{seed}_reference.pt")
+        row["fit"] = {"captured": captured_fit, "reference": reference_fit}
+        row["psnr_gap_db"] = round(reference_fit["psnr"] - captured_fit["psnr"], 2)
+    return row, frame_tiles(truth, video, subject_dir, comparison)
+
+
+def stage_seconds(video: Path, folder: Path) -> dict:
+    """The pipeline's two stages on ``video``, timed apart: front end (both passes), body fit.
+
+    Runs inside the child process of :func:`speed_case` (``--stages``): the same calls
+    ``pghm.capture.capture`` makes, without writing the arrays.
+    """
+    from pghm.capture.bodyfit import fit_body
+    from pghm.capture.config import CaptureConfig
+    from pghm.capture.pipeline import observe_video
+
+    folder.mkdir(parents=True)
+    started = time.perf_counter()
+    front = observe_video(video, folder, CaptureConfig(progress=False))
+    front_s = time.perf_counter() - started
+    fit_body(front.observations)
+    return {"front_end_s": round(front_s, 1), "body_fit_s": round(time.perf_counter() - started - front_s, 1)}
+
+
+def speed_case(work: Path, frames: int) -> dict:
+    """e: a ``frames``-frame 512-px plain video through the pipeline's stages in a child process.
+
+    Wall time of each stage from the child; peak resident memory of the child (``os.wait4``:
+    ru_maxrss, kB, of the child and the ffmpeg readers it waited for).
+    """
+    video = work / f"speed_{frames}f.mp4"
+    if not video.exists():  # a --keep folder's video is reused: it is only read here
+        render_walk_video(walk_config(frames, *SIZE), 0, video, background("plain", 0, *SIZE), progress=True)
+    load = load_average()
+    log = work / f"speed_{frames}f.log"
+    command = [sys.executable, str(Path(__file__).resolve()), "--stages", str(video), str(work / f"speed_{frames}f")]
+    with open(log, "w") as sink:
+        process = subprocess.Popen(command, stdout=sink, stderr=subprocess.DEVNULL)
+        _, status, usage = os.wait4(process.pid, 0)
+    if os.waitstatus_to_exitcode(status) != 0:
+        raise RuntimeError(f"the stage timing of {video.name} failed:\n{log.read_text()[-1500:]}")
+    stages = json.loads(log.read_text().strip().splitlines()[-1])
+    return {
+        "frames": frames,
+        "size": f"{SIZE[0]}x{SIZE[1]}",
+        **stages,
+        "seconds": round(stages["front_end_s"] + stages["body_fit_s"], 1),
+        "peak_gb": round(usage.ru_maxrss * KB / BYTES_PER_GB, 2),
+        "load_before": round(load, 2),
+    }
+
+
+def verdicts(rows: list[dict], speed: dict | None) -> dict[str, bool]:
+    """Each target of the module docstring: met by every row that measured it."""
+    out = {
+        f"iou_{kind}": all(r["iou"] >= TARGETS[f"iou_{kind}"] for r in rows if r["background"] == kind)
+        for kind in sorted({r["background"] for r in rows})
+    }
+    for key in ("mpjpe_mm", "pa_mpjpe_mm", "reproj_pct"):
+        if rows:
+            out[key] = all(r[key] <= TARGETS[key] for r in rows)
+    fitted = [r for r in rows if "psnr_gap_db" in r]
+    if fitted:
+        out["psnr_gap_db"] = all(r["psnr_gap_db"] <= TARGETS["psnr_gap_db"] for r in fitted)
+    if speed is not None:
+        out["seconds_300"] = speed["seconds"] <= TARGETS["seconds_300"]
+        out["peak_gb"] = speed["peak_gb"] <= TARGETS["peak_gb"]
+    return out
+
+
+def report(
+    args: argparse.Namespace, rows: list[dict], tiles: list[np.ndarray], speed: dict | None, load: float
+) -> None:
+    """Print the table and verdicts; write the JSON and (with rows) the figures."""
+    if rows:
+        columns = ["background", "seed", "kept", "iou", "mpjpe_mm", "pa_mpjpe_mm", "reproj_pct", "capture_s", "peak_gb"]
+        if any("psnr_gap_db" in r for r in rows):
+            columns.append("psnr_gap_db")
+        print_table(rows, columns)
+        figure = figure_name(args.results)
+        Image.fromarray(np.concatenate(tiles, axis=0)).save(DOCS / f"{figure}_frames.png")
+        plot_metrics(rows, DOCS / f"{figure}.png")
+        print(f"wrote docs/{figure}.png and docs/{figure}_frames.png")
+    if speed is not None:
+        print_table([speed], ["frames", "size", "front_end_s", "body_fit_s", "seconds", "peak_gb", "load_before"])
+    passed = verdicts(rows, speed)
+    for key, ok in passed.items():
+        print(f"{key}: target {TARGETS[key]}: {'PASS' if ok else 'FAIL'}")
+    write_json(
+        args.results,
+        {
+            "targets": TARGETS,
+            "rows": rows,
+            "speed": speed,
+            "verdicts": passed,
+            "load_before": load,
+            "load_after": load_average(),
+            "command": " ".join(["python", "benchmarks/bench_capture.py", *sys.argv[1:]]),
+        },
+    )
+
+
+def figure_name(results: str) -> str:
+    return results.replace("bench_capture", "capture_bench")
+
+
+def combine(args: argparse.Namespace) -> None:
+    """Report the rows, speed and frame figures of the runs ``args.combine`` as one run, ``args.results``."""
+    rows, tiles, speed, loads = [], [], None, []
+    for name in args.combine:
+        run = json.loads((RESULTS / f"{name}.json").read_text())
+        rows += run["rows"]
+        speed = run["speed"] or speed
+        loads.append(run["load_before"])
+        if run["rows"]:
+            tiles.append(np.asarray(Image.open(DOCS / f"{figure_name(name)}_frames.png").convert("RGB")))
+    report(args, rows, tiles, speed, max(loads))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2], help="none: the speed case only")
+    parser.add_argument("--backgrounds", nargs="+", choices=BACKGROUNDS, default=list(BACKGROUNDS))
+    parser.add_argument("--frames", type=int, default=100, help="frames per accuracy video (default %(default)s)")
+    parser.add_argument(
+        "--speed-frames",
+        type=int,
+        default=SPEED_FRAMES,
+        help="frames of the speed video, 0 to skip (default %(default)s)",
+    )
+    parser.add_argument(
+        "--fit",
+        nargs="*",
+        default=None,
+        metavar="BACKGROUND_SEED",
+        help="run d on these cases, e.g. plain_0 cluttered_1 (no value: plain_0); expensive: ~2 fits of 3-6 min each",
+    )
+    parser.add_argument("--keep", help="keep the videos and subjects here instead of a temporary folder")
+    parser.add_argument(
+        "--results",
+        default="bench_capture",
+        help="name of the JSON in benchmarks/results/ and of the figures in docs/ (default %(default)s)",
+    )
+    parser.add_argument(
+        "--combine",
+        nargs="+",
+        metavar="RESULTS",
+        help="measure nothing: join the rows, speed and frame figures of earlier runs (e.g. seeds run in parallel)",
+    )
+    parser.add_argument("--stages", nargs=2, metavar=("VIDEO", "FOLDER"), help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.stages:
+        print(json.dumps(stage_seconds(Path(args.stages[0]), Path(args.stages[1]))))
+        return 0
+    if args.combine:
+        combine(args)
+        return 0
+    fit_cases = set(args.fit or ["plain_0"]) if args.fit is not None else set()
+    load_before = load_average()
+    with tempfile.TemporaryDirectory() as scratch:
+        work = Path(args.keep) if args.keep else Path(scratch)
+        work.mkdir(parents=True, exist_ok=True)
+        rows, tiles, speed = [], [], None
+        for seed in args.seeds:
+            for kind in args.backgrounds:
+                row, tile = capture_case(work, seed, kind, args.frames, f"{kind}_{seed}" in fit_cases)
+                rows.append(row)
+                tiles.append(tile)
+                report(args, rows, tiles, speed, load_before)  # each case as it ends: a long run keeps what it measured
+        if args.speed_frames:
+            speed = speed_case(work, args.speed_frames)
+            report(args, rows, tiles, speed, load_before)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
