@@ -21,7 +21,7 @@ over the 48 rest vertices nearest to its anchor joint and the 48 nearest to the 
 vertex minimise the Huber (4 px) reprojection error against the true posed bodies over all
 images; the 8 largest are kept and refitted; where the other side's combination, mirrored
 across x = 0, explains a landmark better it replaces it (the right hip: 8.3 -> 5.7 px).
-The residuals (median pixels, persons about 300 px tall) are in docs/capture_body.md and
+The residuals (median pixels, persons about 300 px tall) are in docs/capture.md (Body fit) and
 ``benchmarks/results/derive_landmarks.json``.
 """
 
