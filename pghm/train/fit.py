@@ -27,6 +27,7 @@ from pghm.train.loop import (
     LoopConfig,
     LoopState,
     check_learning_rate,
+    check_trained,
     load_checkpoint,
     restore,
     run_stage,
@@ -125,6 +126,8 @@ def fit(
         model, prior_source = PGHM(prior, num_identities=0), "none (from scratch)"
     else:
         prior_avatar = prior if isinstance(prior, Avatar) else load_avatar(prior)
+        if prior_avatar.kind != "prior":
+            raise PghmError(f"{prior}: is a personalised avatar, not a prior (pghm train-prior); fit needs a prior")
         if data.body_name != prior_avatar.body_name:
             raise PghmError(f"the subject uses the '{data.body_name}' body, the prior '{prior_avatar.body_name}'")
         model = prior_avatar.model
@@ -189,5 +192,7 @@ def fit(
     )
     for p in model.parameters():
         p.requires_grad_(True)
+    check_trained([state1, state2], out)
     save_avatar(out, avatar)
+    ckpt.unlink(missing_ok=True)  # the avatar holds the result; a stale checkpoint would only mislead --resume
     return avatar

@@ -25,6 +25,7 @@ from pghm.train.loop import (
     LoopConfig,
     LoopState,
     check_learning_rate,
+    check_trained,
     load_checkpoint,
     restore,
     run_stage,
@@ -149,6 +150,8 @@ def train_prior(
             "processes": distributed.world_size(),
         },
     )
+    check_trained([state], out)
     if distributed.rank() == 0:
         save_avatar(out, avatar)
+        ckpt.unlink(missing_ok=True)  # the prior holds the result; a stale checkpoint would only mislead --resume
     return avatar
