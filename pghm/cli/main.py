@@ -35,6 +35,7 @@ OUT_OF_MEMORY_TEXT = ("can't allocate memory", "out of memory", "not enough memo
 
 def build_parser() -> argparse.ArgumentParser:
     from pghm.cli.options import OneLineParser
+    from pghm.test_hook import interrupt_point
 
     parser = OneLineParser(
         prog="pghm",
@@ -45,6 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     subparsers.required = True
+    interrupt_point("startup")
     for name in SUBCOMMAND_MODULES:
         importlib.import_module(f"pghm.cli.{name}").register(subparsers)
     return parser

@@ -18,6 +18,7 @@ import numpy as np
 
 from pghm.errors import PghmError
 from pghm.io.outputs import check_output
+from pghm.test_hook import interrupt_point
 from pghm.render.driver import AvatarDriver, GaussianSet
 from pghm.render.frames import Backend, CPUFrames, frame_renderer
 from pghm.render.framing import DEFAULT_FOV_Y, frame_points, orbit_camera
@@ -182,6 +183,7 @@ def render_video(job: RenderJob, log: Callable[[str], None] = print) -> RenderSu
                 totals["render_ms"] += (time.perf_counter() - start) * 1e3
                 start = time.perf_counter()
                 sink.write(to_uint8(rgb))
+                interrupt_point("render-frame")
                 totals["write_ms"] += (time.perf_counter() - start) * 1e3
             driver_name = renderer.driver
     except BaseException:

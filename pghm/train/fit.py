@@ -27,6 +27,7 @@ from pghm.train.loop import (
     LoopConfig,
     LoopState,
     check_learning_rate,
+    check_step_memory,
     check_trained,
     load_checkpoint,
     restore,
@@ -121,6 +122,8 @@ def fit(
     data = TrainingData(subject_dir, pose_smoothing=config.pose_smoothing)
     if data.num_identities != 1:
         raise PghmError(f"{subject_dir}: fit takes one subject folder, found {data.num_identities}")
+    check_step_memory(data, config.stage1, "fit stage 1")
+    check_step_memory(data, config.stage2, "fit stage 2")
     if isinstance(prior, ModelConfig):
         torch.manual_seed(config.stage1.seed)
         model, prior_source = PGHM(prior, num_identities=0), "none (from scratch)"

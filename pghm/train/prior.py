@@ -25,6 +25,7 @@ from pghm.train.loop import (
     LoopConfig,
     LoopState,
     check_learning_rate,
+    check_step_memory,
     check_trained,
     load_checkpoint,
     restore,
@@ -100,6 +101,7 @@ def train_prior(
     distributed.init()
     out = Path(out)
     data = TrainingData(data_dir, max_identities=config.max_identities)
+    check_step_memory(data, config.loop, "train-prior")
     geometries = GeometryCache(data, config.model, config.body_model_path)
     torch.manual_seed(config.loop.seed)
     model = PGHM(config.model, num_identities=data.num_identities)

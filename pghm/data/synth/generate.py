@@ -43,6 +43,7 @@ from pghm.data.synth.regions import Landmarks
 from pghm.data.synth.render import Lighting, MeshRenderer
 from pghm.errors import PghmError
 from pghm.io.outputs import staged_folder
+from pghm.test_hook import interrupt_point
 
 GENERATOR_VERSION = "1.0"
 """Bumped whenever the same config and seed would give different bytes."""
@@ -496,6 +497,7 @@ def generate(
         tasks = make_tasks(config, seed, building, workers)
         with tqdm(total=total, desc="pghm synth", unit="img", disable=not progress, file=sys.stderr) as bar:
             plans = _run_serially(tasks, bar) if workers == 1 else _run_in_pool(tasks, workers, bar)
+        interrupt_point("synth-subjects")
         by_index = {plan.index: plan for plan in plans}
         versions = _versions()
         for index in range(config.identities):
