@@ -65,8 +65,9 @@ class Motion:
     source: str = ""
 
     def __post_init__(self) -> None:
-        self.rotations = np.asarray(self.rotations, dtype=np.float32)
-        self.translation = np.asarray(self.translation, dtype=np.float32)
+        with np.errstate(over="ignore"):  # a value beyond float32 becomes inf, refused below by name
+            self.rotations = np.asarray(self.rotations, dtype=np.float32)
+            self.translation = np.asarray(self.translation, dtype=np.float32)
         frames = self.rotations.shape[0] if self.rotations.ndim == 3 else -1
         if self.rotations.ndim != 3 or self.rotations.shape[1:] != (len(self.bone_names), 3):
             raise MotionFileError(
