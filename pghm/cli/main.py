@@ -103,7 +103,10 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
 
     def work() -> int:
-        args = build_parser().parse_args(argv)
+        try:
+            args = build_parser().parse_args(argv)
+        except SystemExit as stop:  # --help, or a bad option (its one line already printed)
+            return stop.code if isinstance(stop.code, int) else EXIT_USER_ERROR
         return args.func(args)
 
     return guarded("pghm", work, debug_requested(argv))
