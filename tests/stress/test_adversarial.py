@@ -604,3 +604,27 @@ def test_ctrl_c_leaves_nothing(point, argv, world, tmp_path):
         f"exit {result.code}: {' | '.join(lines)[-160:]}; left: {left or 'nothing'}",
         result.code == 128 + signal.SIGINT and lines == ["pghm: interrupted"] and not left,
     )
+
+
+def test_viewer_options_refused_before_a_window(world):
+    """pghm-view's entry (no display needed: the parser refuses first)."""
+    from viewer.app import build_parser as viewer_parser
+    from viewer.app import main as viewer_main
+
+    ranged = [action for _, action in walk(viewer_parser()) if isinstance(action.type, (Integer, Real, Size))]
+    failures = []
+    for action in ranged:
+        for name, value in bad_values(action.type).items():
+            err = io.StringIO()
+            with contextlib.redirect_stderr(err):
+                code = viewer_main([str(world["avatar"]), action.option_strings[-1], value])
+            lines = [line for line in err.getvalue().splitlines() if line.strip()]
+            if not (code == 2 and len(lines) == 1 and lines[0].startswith("pghm-view: error: ")):
+                failures.append(f"{action.option_strings[-1]} {name}: exit {code}, {lines}")
+    check(
+        "adversarial: numeric options",
+        f"pghm-view {', '.join(a.option_strings[-1] for a in ranged)}: 0, past the limit, not WxH, NaN",
+        "exit 2, one line 'pghm-view: error: ...', before any window",
+        "; ".join(failures) if failures else f"{len(ranged)} option(s) refused every bad value",
+        ranged and not failures,
+    )
