@@ -19,8 +19,8 @@ import numpy as np
 from pghm.body import BODY_NAMES, BodyModel, RestBody, load_body
 from pghm.data.bvh import load_bvh
 from pghm.cli.options import Integer, Real
-from pghm.data.motion import MAX_FPS, MAX_FRAMES, MIN_FPS, Motion
-from pghm.data.procedural import PROCEDURAL_MOTIONS, procedural_motion
+from pghm.data.motion import MAX_FPS, MIN_FPS, Motion
+from pghm.data.procedural import MAX_PROCEDURAL_FRAMES, PROCEDURAL_MOTIONS, procedural_motion
 from pghm.data.retarget import RIG_MAPS, UNIT_SCALES, clip_facing, detect_rig, import_bvh, leg_length, retarget_bvh
 from pghm.errors import MotionFileError
 from pghm.io.atomic import save_figure
@@ -202,7 +202,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     maker = commands.add_parser("make", help="generate a procedural motion, save as .npz")
     maker.add_argument("name", choices=tuple(PROCEDURAL_MOTIONS), help="which motion")
     maker.add_argument("--out", required=True, help="the motion file to write (.npz)")
-    maker.add_argument("--frames", type=Integer(1, MAX_FRAMES), help="number of frames (default: the motion's own)")
+    maker.add_argument("--frames", type=Integer(1, MAX_PROCEDURAL_FRAMES), help="number of frames (default: the motion's own)")
     maker.add_argument("--fps", type=FPS, default=30.0, help="frames per second")
     _add_body_options(maker)
     maker.set_defaults(func=_make)

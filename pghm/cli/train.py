@@ -6,8 +6,10 @@ import argparse
 import json
 import logging
 import sys
+from pathlib import Path
 
 from pghm.cli.options import MAX_INDEX, POSITIVE_STEPS, SEED, STEPS, Integer, Real
+from pghm.errors import PghmError
 from pghm.io.outputs import check_output
 from pghm.model import ModelConfig
 from pghm.model.config import MAX_CHANNELS
@@ -186,7 +188,9 @@ def run_eval(args: argparse.Namespace) -> int:
     strip = args.strip or f"{args.avatar}.eval.png"
     inputs = [args.avatar, args.subject_dir, args.body_model_path]
     check_output(report, inputs=inputs, option="--report")
-    check_output(strip, inputs=[*inputs, report], option="--strip")
+    check_output(strip, inputs=inputs, option="--strip")
+    if Path(report).resolve() == Path(strip).resolve():
+        raise PghmError(f"--report and --strip are the same file ({report}); give two names")
     result = evaluate(
         args.avatar,
         args.subject_dir,
