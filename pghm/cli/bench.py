@@ -69,7 +69,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--gaussians", type=Integer(1, MAX_GAUSSIANS), help="scene size N (splat: 10000)")
     parser.add_argument("--resolution", type=Integer(1, MAX_IMAGE_SIDE), help="image side in pixels (splat: 256)")
     parser.add_argument("--repeats", type=Integer(1, MAX_REPEATS), help="timed repeats per measurement (splat: 15)")
-    parser.add_argument("--threads", type=Integer(1, MAX_THREADS), default=2, help="torch threads (default 2, the target machine)")
+    parser.add_argument(
+        "--threads",
+        type=Integer(1, MAX_THREADS),
+        default=2,
+        help="torch threads (default 2, the target machine)",
+    )
     parser.add_argument(
         "--out", type=Path, default=DEFAULT_OUT, help=f"directory for JSON results (default {DEFAULT_OUT})"
     )
@@ -81,6 +86,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="stress: the Markdown report to write (default docs/stress.md)",
     )
     parser.add_argument(
-        "--fuzz-seconds", type=Real(0.0, MAX_FUZZ_SECONDS), default=30.0, help="stress: time budget of the loader fuzzer (default 30)"
+        "--fuzz-seconds",
+        type=Real(0.0, MAX_FUZZ_SECONDS),
+        default=30.0,
+        help="stress: time budget of the loader fuzzer (default 30)",
     )
     parser.set_defaults(func=_run)

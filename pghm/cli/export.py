@@ -17,7 +17,12 @@ def register(subparsers) -> None:
     parser = subparsers.add_parser("export", help="write posed Gaussians as a 3DGS .ply")
     parser.add_argument("avatar", help="avatar.pt (or prior.pt with --identity)")
     parser.add_argument("--pose", default="rest", help="a motion file (.npz, .bvh) or a name: rest, walk, squat, ...")
-    parser.add_argument("--frame", type=Integer(0, MAX_FRAMES - 1), default=0, help="frame of the motion (default %(default)s)")
+    parser.add_argument(
+        "--frame",
+        type=Integer(0, MAX_FRAMES - 1),
+        default=0,
+        help="frame of the motion (default %(default)s)",
+    )
     parser.add_argument("--out", required=True, help="the .ply to write")
     parser.add_argument(
         "--view",

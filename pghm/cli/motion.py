@@ -202,7 +202,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     maker = commands.add_parser("make", help="generate a procedural motion, save as .npz")
     maker.add_argument("name", choices=tuple(PROCEDURAL_MOTIONS), help="which motion")
     maker.add_argument("--out", required=True, help="the motion file to write (.npz)")
-    maker.add_argument("--frames", type=Integer(1, MAX_PROCEDURAL_FRAMES), help="number of frames (default: the motion's own)")
+    maker.add_argument(
+        "--frames",
+        type=Integer(1, MAX_PROCEDURAL_FRAMES),
+        help="number of frames (default: the motion's own)",
+    )
     maker.add_argument("--fps", type=FPS, default=30.0, help="frames per second")
     _add_body_options(maker)
     maker.set_defaults(func=_make)

@@ -47,9 +47,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--motion", help="motion file (.npz, .bvh) or procedural name (walk, squat, ...)")
     parser.add_argument("--orbit", action="store_true", help="turn the camera once around the body")
     parser.add_argument("--size", type=Size(), default=DEFAULT_SIZE, help="WxH pixels (default 640x480)")
-    parser.add_argument("--fps", type=Real(MIN_FPS, MAX_FPS), default=DEFAULT_FPS, help="frames per second (default 30)")
-    parser.add_argument("--frames", type=Integer(1, MAX_RENDER_FRAMES), help="number of frames (default: the motion once / one orbit / 1)")
-    parser.add_argument("--start", type=Real(-MAX_SECONDS, MAX_SECONDS), default=0.0, help="seconds into the motion of the first frame")
+    parser.add_argument(
+        "--fps",
+        type=Real(MIN_FPS, MAX_FPS),
+        default=DEFAULT_FPS,
+        help="frames per second (default 30)",
+    )
+    parser.add_argument(
+        "--frames",
+        type=Integer(1, MAX_RENDER_FRAMES),
+        help="number of frames (default: the motion once / one orbit / 1)",
+    )
+    parser.add_argument(
+        "--start",
+        type=Real(-MAX_SECONDS, MAX_SECONDS),
+        default=0.0,
+        help="seconds into the motion of the first frame",
+    )
     parser.add_argument(
         "--backend",
         choices=("auto", "gl", "cpu"),
@@ -61,7 +75,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--no-view-dependent", action="store_true", help="leave out the view-dependent colour")
     parser.add_argument("--background", type=parse_colour, default=(1.0, 1.0, 1.0), help="r,g,b in [0, 1]")
     parser.add_argument("--pitch", type=Real(-PITCH_LIMIT, PITCH_LIMIT), default=0.0, help="camera elevation, degrees")
-    parser.add_argument("--yaw", type=Real(-MAX_ANGLE, MAX_ANGLE), default=0.0, help="camera azimuth, degrees (0: front)")
+    parser.add_argument(
+        "--yaw",
+        type=Real(-MAX_ANGLE, MAX_ANGLE),
+        default=0.0,
+        help="camera azimuth, degrees (0: front)",
+    )
     parser.add_argument("--no-follow", action="store_true", help="keep the camera still when the body moves")
     parser.add_argument("--body-model-path", help="the SMPL-X model file, for SMPL-X avatars")
     parser.set_defaults(func=run_render)

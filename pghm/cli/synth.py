@@ -42,6 +42,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--seed", type=SEED, default=0, help="dataset seed (default 0)")
     parser.add_argument("--out", required=True, help="new (or empty) output folder")
-    parser.add_argument("--workers", type=Integer(1, MAX_WORKERS), default=2, help="render processes (default 2, one per core)")
+    parser.add_argument(
+        "--workers",
+        type=Integer(1, MAX_WORKERS),
+        default=2,
+        help="render processes (default 2, one per core)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.set_defaults(func=_synth)

@@ -33,9 +33,17 @@ def _model_arguments(parser: argparse.ArgumentParser) -> None:
     defaults = ModelConfig()
     group = parser.add_argument_group("model (prior training only)")
     group.add_argument(
-        "--uv-resolution", type=Integer(MIN_RESOLUTION, MAX_RESOLUTION), default=defaults.uv_resolution, help="L, texels per side (default %(default)s)"
+        "--uv-resolution",
+        type=Integer(MIN_RESOLUTION, MAX_RESOLUTION),
+        default=defaults.uv_resolution,
+        help="L, texels per side (default %(default)s)",
     )
-    group.add_argument("--latent-channels", type=Integer(1, MAX_CHANNELS), default=defaults.latent_channels, help="C (default %(default)s)")
+    group.add_argument(
+        "--latent-channels",
+        type=Integer(1, MAX_CHANNELS),
+        default=defaults.latent_channels,
+        help="C (default %(default)s)",
+    )
     group.add_argument(
         "--head", choices=("multi", "single"), default=defaults.head, help="U-Net heads (default %(default)s)"
     )
@@ -80,12 +88,20 @@ def register(subparsers) -> None:
     prior.add_argument("--out", required=True, help="prior file to write, e.g. prior.pt")
     _loop_arguments(prior, "", PriorConfig().loop, POSITIVE_STEPS)
     prior.add_argument(
-        "--shards", type=Integer(1, MAX_SHARDS), default=1, help="identity groups per step; a multiple of the torchrun processes"
+        "--shards",
+        type=Integer(1, MAX_SHARDS),
+        default=1,
+        help="identity groups per step; a multiple of the torchrun processes",
     )
     prior.add_argument(
         "--lr", type=LEARNING_RATE, default=PriorConfig().network_lr, help="network learning rate (default %(default)s)"
     )
-    prior.add_argument("--identities", type=Integer(1, MAX_INDEX), default=None, help="train on the first N subjects only (default: all)")
+    prior.add_argument(
+        "--identities",
+        type=Integer(1, MAX_INDEX),
+        default=None,
+        help="train on the first N subjects only (default: all)",
+    )
     _model_arguments(prior)
     _common(prior, PriorConfig().loop.loss)
     prior.set_defaults(func=run_train_prior)

@@ -299,7 +299,9 @@ VALUE_BOUNDS = {
 rad or a camera 1e40 m away is corrupt data, refused at the loader rather than met as a NaN."""
 
 
-def value_problems(cameras: dict[str, np.ndarray], poses: dict[str, np.ndarray] | None) -> list[tuple[str, str, np.ndarray]]:
+def value_problems(
+    cameras: dict[str, np.ndarray], poses: dict[str, np.ndarray] | None
+) -> list[tuple[str, str, np.ndarray]]:
     """(file, problem, per-image mask) for values out of bounds (NaN included) and camera rotations
     that are not rotations; the arrays' shapes must already be right. Shared by the loader (which
     raises the first) and ``pghm data check`` (which lists them all)."""
@@ -327,7 +329,8 @@ def value_problems(cameras: dict[str, np.ndarray], poses: dict[str, np.ndarray] 
             | (np.abs(E[:, 3] - np.array([0.0, 0.0, 0.0, 1.0])).max(1) > ROTATION_TOLERANCE)
         )
     if not_rigid.any():
-        found.append(("cameras.npz", "world_to_camera is not a rigid transform (its rotation is not a rotation)", not_rigid))
+        message = "world_to_camera is not a rigid transform (its rotation is not a rotation)"
+        found.append(("cameras.npz", message, not_rigid))
     return found
 
 

@@ -96,7 +96,9 @@ class Avatar:
         """PghmError unless ``index`` picks a member of a prior's bank (an avatar is one person: 0 only)."""
         if self.kind != "prior":
             if index != 0:
-                raise PghmError(f"identity {index!r}: this is a personalised avatar (one person); --identity picks a prior's member")
+                raise PghmError(
+                    f"identity {index!r}: this is a personalised avatar (one person); --identity picks a prior's member"
+                )
             return
         count = self.model.num_identities
         try:

@@ -99,8 +99,9 @@ def evaluate(
     data = TrainingData(subject_dir, split=split, true_poses=true_poses)
     if data.num_identities != 1:
         names = ", ".join(subject.directory.name for subject in data.subjects[:5])
+        more = ", ..." if data.num_identities > 5 else ""
         raise PghmError(
-            f"{subject_dir}: a data set of {data.num_identities} subjects ({names}{', ...' if data.num_identities > 5 else ''}); "
+            f"{subject_dir}: a data set of {data.num_identities} subjects ({names}{more}); "
             "eval takes one subject folder"
         )
     lpips = load_lpips()

@@ -105,7 +105,9 @@ def base_commands(world: dict, out: Path) -> dict[tuple[str, ...], list[str]]:
         ("fit",): ["fit", s, "--prior", a, "--out", str(out / "a.pt"), "--no-lpips", *TINY_RUN["fit"]],
         ("eval",): ["eval", a, s, "--report", str(out / "r.json"), "--strip", str(out / "r.png")],
         ("export",): ["export", a, "--out", str(out / "x.ply")],
-        ("bench",): ["bench", "splat", "--out", str(out / "bench"), "--plot", str(out / "plot.png"), *TINY_RUN["bench"]],
+        ("bench",): [
+            "bench", "splat", "--out", str(out / "bench"), "--plot", str(out / "plot.png"), *TINY_RUN["bench"]
+        ],
         ("render",): ["render", a, "--out", str(out / "v.png"), "--backend", "cpu", "--size", "32x24"],
     }
 
@@ -291,6 +293,11 @@ def bad_outputs(output: tuple[str, str], work: Path, an_input: Path | None) -> d
     return cases
 
 
+def _fingerprint(world: dict) -> dict:
+    """Every input's bytes, hashed (folders file by file)."""
+    return {k: snapshot(v) if v.is_dir() else hashlib.sha256(v.read_bytes()).hexdigest() for k, v in world.items()}
+
+
 @pytest.mark.parametrize("path,dest", OUTPUTS, ids=[f"{'-'.join(p)}--{d}" for p, d in OUTPUTS])
 def test_output_refused_before_work(path, dest, world, tmp_path):
     argv = base_commands(world, tmp_path)[path]
@@ -300,13 +307,11 @@ def test_output_refused_before_work(path, dest, world, tmp_path):
     an_input = next((Path(a) for a in argv[len(path) :] if Path(a).is_file()), None)
     failures, passed = [], 0
     for name, value in bad_outputs((path[0], dest), tmp_path, an_input).items():
-        inputs = {k: snapshot(v) if v.is_dir() else hashlib.sha256(v.read_bytes()).hexdigest() for k, v in world.items()}
+        inputs = _fingerprint(world)
         before = snapshot(tmp_path)
         result = cli(*_replace_option(argv, option, value), cwd=tmp_path)
         ok, observed = holds_contract(result, before, snapshot(tmp_path))
-        unchanged = inputs == {
-            k: snapshot(v) if v.is_dir() else hashlib.sha256(v.read_bytes()).hexdigest() for k, v in world.items()
-        }
+        unchanged = inputs == _fingerprint(world)
         if ok and unchanged:
             passed += 1
         else:
@@ -406,7 +411,10 @@ def file_cases(world: dict, work: Path) -> dict[str, tuple[list[str], str]]:
             ["render", a, "--motion", str(_empty(work, "empty.bvh")), "--out", str(work / "v.png"), "--backend", "cpu"],
             "empty",
         ),
-        "empty avatar .pt -> export": (["export", str(_empty(work, "empty.pt")), "--out", str(work / "x.ply")], "empty"),
+        "empty avatar .pt -> export": (
+            ["export", str(_empty(work, "empty.pt")), "--out", str(work / "x.ply")],
+            "empty.pt",
+        ),
         "a folder named like an avatar -> export": (
             ["export", str(Path(shutil.copytree(world["subject"], work / "folder.pt"))), "--out", str(work / "x.ply")],
             "folder.pt",
@@ -451,7 +459,11 @@ def test_data_check_lists_bad_values_and_truncated_pngs(world, tmp_path):
     image = subject / "images" / "000002.png"
     image.write_bytes(image.read_bytes()[: len(image.read_bytes()) // 2])
     result = cli("data", "check", subject)
-    expected = ["not a rigid transform (its rotation is not a rotation) for image(s) 1", "'rotations' is beyond", "images/000002.png: unreadable"]
+    expected = [
+        "not a rigid transform (its rotation is not a rotation) for image(s) 1",
+        "'rotations' is beyond",
+        "images/000002.png: unreadable",
+    ]
     found = [words for words in expected if words in result.stdout]
     check(
         "adversarial: file contents",
@@ -588,7 +600,7 @@ def test_checkpoint_is_gone_after_success_and_prior_kinds(world, tiny_dataset, t
     "point,argv",
     [
         ("startup", ["motion", "make", "walk", "--out", "m.npz"]),
-        ("render-frame", ["render", "AVATAR", "--frames", "3", "--out", "frames", "--backend", "cpu", "--size", "32x24"]),
+        ("render-frame", ["render", "AVATAR", "--frames", "3", "--out", "frames", "--backend", "cpu", "--size", "8x6"]),
         ("synth-subjects", ["synth", "--out", "data", "--workers", "1", "--quiet"]),
     ],
 )
