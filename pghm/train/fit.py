@@ -188,6 +188,7 @@ def fit(
             "steps": {"stage1": state1.step, "stage2": state2.step},
             "seconds": round(state1.seconds + state2.seconds, 1),
             "skipped_steps": state1.skipped_steps + state2.skipped_steps,
+            "skipped_images": [list(b) for b in state2.bad_images],
             "lpips": lpips_line,
             "final": state2.history[-1] if state2.history else {},
             "config": asdict(config),

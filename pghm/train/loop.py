@@ -287,8 +287,10 @@ def check_step_memory(data: TrainingData, config: LoopConfig, description: str) 
 def check_trained(states: list[LoopState], out: Path) -> None:
     """PghmError instead of writing ``out`` from a run that trained on nothing.
 
-    Refused: no step at all, no step that saw an image (every image unreadable), every step
-    skipped as non-finite, or a final loss that is not finite. The checkpoint, if any, stays.
+    Refused: no step at all, no step that saw an image (every image unreadable), or no step with
+    a finite loss (every step skipped as non-finite, as with an overflowing loss weight). A run
+    whose last steps were skipped keeps the parameters of its last finite step (the guard undid
+    the others) and is written. The checkpoint, if any, stays.
     """
     steps = sum(state.step for state in states)
     history = [entry for state in states for entry in state.history]
@@ -298,10 +300,8 @@ def check_trained(states: list[LoopState], out: Path) -> None:
         reason = "no training step was asked (every step count is 0)"
     elif not history:
         reason = f"none of its {steps} step(s) saw an image: every image it drew was unreadable (see the warnings)"
-    elif skipped >= steps:
+    elif skipped >= steps or not any(math.isfinite(entry.get("loss", math.nan)) for entry in history):
         reason = f"all {steps} step(s) were non-finite and skipped; lower the learning rates or loss weights"
-    elif not math.isfinite(history[-1].get("loss", math.nan)):
-        reason = "the final step's loss is not finite; lower the learning rates or loss weights"
     if reason:
         raise PghmError(f"{out}: not written: {reason}")
 

@@ -543,7 +543,7 @@ def test_training_refuses_a_result_of_nothing(world, tmp_path):
     states = {
         "no step at all": [LoopState()],
         "every step skipped as non-finite": [LoopState(step=3, skipped_steps=3, history=[{"loss": nan}] * 3)],
-        "a non-finite final loss": [LoopState(step=2, skipped_steps=1, history=[{"loss": 0.1}, {"loss": nan}])],
+        "no finite loss in any step": [LoopState(step=2, skipped_steps=1, history=[{"loss": nan}, {"loss": nan}])],
         "no step saw an image": [LoopState(step=4)],
     }
     for name, state in states.items():
@@ -553,8 +553,9 @@ def test_training_refuses_a_result_of_nothing(world, tmp_path):
         except PghmError as error:
             observed, ok = str(error), "not written" in str(error)
         check("adversarial: training on nothing", f"check_trained: {name}", "PghmError, nothing written", observed, ok)
-    good = [LoopState(step=2, history=[{"loss": 0.2}, {"loss": 0.1}])]
-    check_trained(good, tmp_path / "x.pt")  # a real run passes
+    check_trained([LoopState(step=2, history=[{"loss": 0.2}, {"loss": 0.1}])], tmp_path / "x.pt")
+    # A last step skipped by the guard leaves the parameters of the step before: written.
+    check_trained([LoopState(step=2, skipped_steps=1, history=[{"loss": 0.2}, {"loss": nan}])], tmp_path / "x.pt")
 
 
 def test_checkpoint_is_gone_after_success_and_prior_kinds(world, tiny_dataset, tiny_prior, tmp_path):
