@@ -40,6 +40,13 @@ AREAS = (
     "bad dataset",
     "found and fixed",
     "nothing lost",
+    "adversarial: numeric options",
+    "adversarial: outputs",
+    "adversarial: file contents",
+    "adversarial: sizes and memory",
+    "adversarial: training on nothing",
+    "adversarial: Ctrl-C",
+    "adversarial: misc",
 )
 """Report sections, in this order (an area not listed here follows them)."""
 AREA_NOTES = {

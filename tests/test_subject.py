@@ -89,7 +89,7 @@ def test_check_names_a_non_finite_camera(subject_dir, capsys):
     K = _array(subject_dir / "cameras.npz", "K")
     K[2, 0, 0] = np.nan
     _rewrite_npz(subject_dir / "cameras.npz", K=K)
-    assert _problems(subject_dir) == ["cameras.npz: K is not finite for image(s) 2"]
+    assert _problems(subject_dir) == ["cameras.npz: 'K' is not finite for image(s) 2"]
     assert _cli_check(subject_dir, capsys)[0] == 2
 
 
@@ -121,8 +121,8 @@ def test_check_reports_problems_inside_a_dataset_with_the_subject_prefix(dataset
     assert _problems(copy) == ["subject_000: subject folder missing", "subject_001/masks/000000.png: missing"]
 
 
-def test_check_reads_only_png_headers_for_images(subject_dir, monkeypatch):
-    """Images are never decoded (only masks are): the checker streams through big sets."""
+def test_check_decodes_every_image_and_mask(subject_dir, monkeypatch):
+    """Every PNG's pixels are decoded (a truncated file has a valid header), one file at a time."""
     decoded = []
     original = Image.Image.load
 
@@ -133,8 +133,8 @@ def test_check_reads_only_png_headers_for_images(subject_dir, monkeypatch):
     monkeypatch.setattr(Image.Image, "load", spy)
     assert check(subject_dir) == []
     files = [name for name in decoded if name]  # converted copies have no file name
-    assert {Path(name).name for name in files} == {image_name(i) for i in range(6)}
-    assert all("/masks/" in name for name in files)
+    expected = {f"{folder}/{image_name(i)}" for folder in ("images", "masks") for i in range(6)}
+    assert {f"{Path(name).parent.name}/{Path(name).name}" for name in files} == expected
 
 
 # ----------------------------------------------------------------- reader

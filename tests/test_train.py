@@ -93,11 +93,22 @@ def test_fit_stage1_changes_only_the_latent_stage2_also_the_unet(tiny_dataset, p
     assert not any(name.startswith(("identity_bank", "feature_decoder")) for name in changed)
 
 
-def test_resume_gives_the_same_parameters(tiny_dataset, tmp_path):
+def test_resume_gives_the_same_parameters(tiny_dataset, tmp_path, monkeypatch):
+    from pghm.train.data import TrainingData
+
     straight = train_prior(tiny_dataset, tmp_path / "straight.pt", prior_config(steps=6))
-    first = prior_config(steps=3)
-    first.loop.checkpoint_every = 3
-    train_prior(tiny_dataset, tmp_path / "resumed.pt", first)
+    assert not (tmp_path / "straight.pt.ckpt").exists()  # a finished run leaves only its result
+    plan = TrainingData.plan
+
+    def interrupted_at_step_3(self, seed, step, *rest):
+        if step == 3:
+            raise KeyboardInterrupt  # what Ctrl-C does there: the loop saves a checkpoint and re-raises
+        return plan(self, seed, step, *rest)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(TrainingData, "plan", interrupted_at_step_3)
+        with pytest.raises(KeyboardInterrupt):
+            train_prior(tiny_dataset, tmp_path / "resumed.pt", prior_config(steps=6))
     resumed = train_prior(tiny_dataset, tmp_path / "resumed.pt", prior_config(steps=6), resume=True)
     for (name, a), (_, b) in zip(straight.model.state_dict().items(), resumed.model.state_dict().items()):
         # The same batches and optimizer state: equal up to float reassociation in threaded kernels.

@@ -434,7 +434,7 @@ def test_bad_avatar_file_before_a_window_prints_one_line(display, tmp_path):
 def test_missing_default_avatar_prints_one_line(display, tmp_path, monkeypatch, capsys):
     import viewer.app as app
 
-    monkeypatch.setattr(app, "DEFAULT_AVATAR", tmp_path / "assets" / "avatar.pt")
+    monkeypatch.setattr("viewer.settings.DEFAULT_AVATAR", tmp_path / "assets" / "avatar.pt")
     assert app.main([]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "assets/avatar.pt" in err[0]

@@ -1,7 +1,9 @@
 """``pghm-view [avatar.pt]``: open the live viewer.
 
 Exit status 2 with one line on stderr when there is no display (pointing to ``pghm
-render``), when the avatar file is missing or bad, or when no OpenGL 3.3 window can be made.
+render``), when the avatar file is missing or bad, or when no OpenGL 3.3 window can be made;
+130 after Ctrl-C, also while the viewer's modules load. ``PGHM_DEBUG=1`` shows tracebacks
+(the error contract of :mod:`pghm.cli.main`, shared through :func:`pghm.cli.main.guarded`).
 """
 
 from __future__ import annotations
@@ -10,59 +12,59 @@ import argparse
 import sys
 from pathlib import Path
 
+from pghm.cli.main import debug_requested, guarded
+from pghm.cli.options import OneLineParser, Size
 from pghm.errors import EXIT_USER_ERROR, DisplayError, PghmError
-from viewer.settings import DEFAULT_AVATAR
 
 HEADLESS_HINT = "render without a window: pghm render AVATAR.pt --out out.mp4"
+DEFAULT_WINDOW = (1280, 800)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="pghm-view", description="Live viewer of pghm avatars and priors.")
-    parser.add_argument("avatar", nargs="?", type=Path, help=f"avatar or prior file (default: {DEFAULT_AVATAR})")
-    parser.add_argument("--size", default="1280x800", help="window size WxH (default 1280x800)")
+    parser = OneLineParser(prog="pghm-view", description="Live viewer of pghm avatars and priors.")
+    parser.add_argument("avatar", nargs="?", type=Path, help="avatar or prior file (default: the shipped avatar)")
+    parser.add_argument("--size", type=Size(), default=DEFAULT_WINDOW, help="window size WxH (default 1280x800)")
     parser.add_argument("--motion", help="motion to open: a .npz / .bvh file or a procedural name")
     parser.add_argument("--body-model-path", help="the SMPL-X model file, for SMPL-X avatars")
     return parser
 
 
-def _fail(message: str) -> int:
-    print(f"pghm-view: error: {message}", file=sys.stderr)
-    return EXIT_USER_ERROR
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    from pghm.cli.render import parse_size
+def _open_and_run(args: argparse.Namespace) -> int:
+    from viewer.settings import DEFAULT_AVATAR
     from viewer.window import display_problem
 
-    try:
-        size = parse_size(args.size)
-    except argparse.ArgumentTypeError as error:
-        return _fail(str(error))
     problem = display_problem()
     if problem:
-        return _fail(f"{problem}; {HEADLESS_HINT}")
+        raise DisplayError(f"{problem}; {HEADLESS_HINT}")
     path = args.avatar
     if path is None:
         path = DEFAULT_AVATAR
         if not path.is_file():
-            return _fail(f"no avatar given and the default {path} is missing; pass an avatar file")
+            raise PghmError(f"no avatar given and the default {path} is missing; pass an avatar file")
 
     from viewer.viewer import Viewer
 
-    try:
-        viewer = Viewer(path, window_size=size, body_model_path=args.body_model_path)
-        if args.motion:
-            viewer.open_motion(args.motion)
-    except PghmError as error:
-        return _fail(str(error).splitlines()[0])
+    viewer = Viewer(path, window_size=args.size, body_model_path=args.body_model_path)
+    if args.motion:
+        viewer.open_motion(args.motion)
     try:
         viewer.run()
     except DisplayError as error:
-        return _fail(f"{error}; {HEADLESS_HINT}")
-    except KeyboardInterrupt:
-        return 130
+        raise DisplayError(f"{error}; {HEADLESS_HINT}") from None
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
+
+    def work() -> int:
+        try:
+            args = build_parser().parse_args(argv)
+        except SystemExit as stop:  # --help, or a bad option (its one line already printed)
+            return stop.code if isinstance(stop.code, int) else EXIT_USER_ERROR
+        return _open_and_run(args)
+
+    return guarded("pghm-view", work, debug_requested(argv))
 
 
 if __name__ == "__main__":

@@ -16,7 +16,16 @@ import argparse
 from collections.abc import Callable
 from pathlib import Path
 
+from pghm.cli.options import MAX_IMAGE_SIDE, Integer, Real
 from pghm.errors import PghmError
+
+from pghm.io.outputs import check_output
+
+MAX_GAUSSIANS = 100_000_000
+MAX_REPEATS = 10_000
+MAX_THREADS = 1024
+MAX_FUZZ_SECONDS = 86_400.0
+"""Bounds of bench's numeric options (far above any run this machine finishes)."""
 
 DEFAULT_OUT = Path("benchmarks") / "results"
 """Where JSON results go unless --out says otherwise."""
@@ -28,8 +37,8 @@ def _splat(args: argparse.Namespace) -> int:
     from pghm.splat.benchmark import format_table, run_sweep
 
     torch.set_num_threads(args.threads)
-    output = args.out / "bench_splat_sweep.json"
-    plot = args.plot if args.plot is not None else Path("docs") / "splat_pareto.png"
+    output = check_output(args.out / "bench_splat_sweep.json")
+    plot = check_output(args.plot if args.plot is not None else Path("docs") / "splat_pareto.png", option="--plot")
     rows, front = run_sweep(args.gaussians or 10_000, args.resolution or 256, args.repeats or 15, output, plot)
     print(format_table(rows, ["setting", "forward_ms", "forward_backward_ms", "max_abs", "psnr"]))
     print(f"Pareto frontier (forward+backward time vs max abs error): {', '.join(front)}")
@@ -40,18 +49,12 @@ def _splat(args: argparse.Namespace) -> int:
 def _stress(args: argparse.Namespace) -> int:
     from pghm.stress_report import run_stress
 
+    check_output(args.report, option="--report")
     return run_stress(args.report, args.out, args.fuzz_seconds)
 
 
 BENCHMARKS: dict[str, Callable[[argparse.Namespace], int]] = {"splat": _splat, "stress": _stress}
 """Benchmark name -> function of the parsed arguments returning an exit status."""
-
-
-def _positive(text: str) -> int:
-    value = int(text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {value}")
-    return value
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -63,10 +66,15 @@ def _run(args: argparse.Namespace) -> int:
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("bench", help="run a named benchmark (prints a table, writes JSON and a plot)")
     parser.add_argument("name", metavar="NAME", help=f"benchmark to run: {', '.join(sorted(BENCHMARKS))}")
-    parser.add_argument("--gaussians", type=_positive, help="scene size N (splat: 10000)")
-    parser.add_argument("--resolution", type=_positive, help="image side in pixels (splat: 256)")
-    parser.add_argument("--repeats", type=_positive, help="timed repeats per measurement (splat: 15)")
-    parser.add_argument("--threads", type=_positive, default=2, help="torch threads (default 2, the target machine)")
+    parser.add_argument("--gaussians", type=Integer(1, MAX_GAUSSIANS), help="scene size N (splat: 10000)")
+    parser.add_argument("--resolution", type=Integer(1, MAX_IMAGE_SIDE), help="image side in pixels (splat: 256)")
+    parser.add_argument("--repeats", type=Integer(1, MAX_REPEATS), help="timed repeats per measurement (splat: 15)")
+    parser.add_argument(
+        "--threads",
+        type=Integer(1, MAX_THREADS),
+        default=2,
+        help="torch threads (default 2, the target machine)",
+    )
     parser.add_argument(
         "--out", type=Path, default=DEFAULT_OUT, help=f"directory for JSON results (default {DEFAULT_OUT})"
     )
@@ -78,6 +86,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="stress: the Markdown report to write (default docs/stress.md)",
     )
     parser.add_argument(
-        "--fuzz-seconds", type=float, default=30.0, help="stress: time budget of the loader fuzzer (default 30)"
+        "--fuzz-seconds",
+        type=Real(0.0, MAX_FUZZ_SECONDS),
+        default=30.0,
+        help="stress: time budget of the loader fuzzer (default 30)",
     )
     parser.set_defaults(func=_run)

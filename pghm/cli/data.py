@@ -11,8 +11,13 @@ from __future__ import annotations
 import argparse
 import sys
 
+from pghm.cli.options import Integer
 from pghm.data.subject import check, count_images
 from pghm.errors import EXIT_USER_ERROR
+from pghm.io.outputs import check_output
+
+MIN_TILE, MAX_TILE = 16, 2048
+"""Contact-sheet tile sides accepted, in pixels."""
 
 
 def _check(args: argparse.Namespace) -> int:
@@ -30,6 +35,7 @@ def _check(args: argparse.Namespace) -> int:
 def _sheet(args: argparse.Namespace) -> int:
     from pghm.data.synth.sheet import contact_sheet
 
+    check_output(args.out, inputs=[args.dir, args.mono])
     sheet = contact_sheet(args.dir, args.out, tile=args.tile, mono_dir=args.mono)
     print(f"{args.out}: {sheet.shape[1]}x{sheet.shape[0]}")
     return 0
@@ -51,5 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sheet.add_argument("dir", help="a dataset (or subject) folder")
     sheet.add_argument("--out", required=True, help="the PNG to write")
     sheet.add_argument("--mono", help="a monocular subject (or dataset) to add as a strip of frames")
-    sheet.add_argument("--tile", type=int, default=256, help="tile size in pixels (default 256)")
+    sheet.add_argument(
+        "--tile", type=Integer(MIN_TILE, MAX_TILE), default=256, help="tile size in pixels (default 256)"
+    )
     sheet.set_defaults(func=_sheet)

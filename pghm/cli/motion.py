@@ -18,16 +18,23 @@ import numpy as np
 
 from pghm.body import BODY_NAMES, BodyModel, RestBody, load_body
 from pghm.data.bvh import load_bvh
-from pghm.data.motion import Motion
-from pghm.data.procedural import PROCEDURAL_MOTIONS, procedural_motion
+from pghm.cli.options import Integer, Real
+from pghm.data.motion import MAX_FPS, MIN_FPS, Motion
+from pghm.data.procedural import MAX_PROCEDURAL_FRAMES, PROCEDURAL_MOTIONS, procedural_motion
 from pghm.data.retarget import RIG_MAPS, UNIT_SCALES, clip_facing, detect_rig, import_bvh, leg_length, retarget_bvh
 from pghm.errors import MotionFileError
 from pghm.io.atomic import save_figure
+from pghm.io.outputs import check_output
 
 PREVIEW_VERTEX_STRIDE = 4
 """Plot every 4th vertex: enough points to read a pose, few enough to draw quickly."""
 PREVIEW_HALF_WIDTH_M = 1.0
 """Each panel shows this far either side of the body's root."""
+MAX_PREVIEW_FRAMES = 32
+"""Most poses per clip in a preview sheet (two panels each)."""
+MIN_DPI, MAX_DPI = 10, 600
+"""Preview resolutions accepted (dots per inch of a 2.8 x 2.2 inch panel pair)."""
+FPS = Real(MIN_FPS, MAX_FPS)
 
 
 def _add_body_options(parser: argparse.ArgumentParser) -> None:
@@ -40,6 +47,7 @@ def _body(args: argparse.Namespace) -> BodyModel:
 
 
 def _import(args: argparse.Namespace) -> int:
+    check_output(args.out, inputs=[args.file, args.body_model_path])
     motion = import_bvh(
         args.file,
         _body(args),
@@ -54,6 +62,7 @@ def _import(args: argparse.Namespace) -> int:
 
 
 def _make(args: argparse.Namespace) -> int:
+    check_output(args.out, inputs=[args.body_model_path])
     motion = procedural_motion(args.name, _body(args), frames=args.frames, fps=args.fps)
     motion.save(args.out)
     print(f"{args.out}: {_summary(motion)}")
@@ -132,6 +141,7 @@ def _preview(args: argparse.Namespace) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    check_output(args.out, inputs=[*args.clips, args.body_model_path])
     body = _body(args)
     rest = body.rest()
     floor = float(rest.vertices[:, 1].min())
@@ -179,7 +189,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     importer.add_argument("file", help="the .bvh file")
     importer.add_argument("--out", required=True, help="the motion file to write (.npz)")
     _add_body_options(importer)
-    importer.add_argument("--fps", type=float, help="resample to this frame rate (default: the clip's)")
+    importer.add_argument("--fps", type=FPS, help="resample to this frame rate (default: the clip's)")
     importer.add_argument("--units", choices=("auto", *UNIT_SCALES), default="auto", help="the clip's length unit")
     importer.add_argument("--rig", choices=tuple(RIG_MAPS), help="the clip's rig (default: detected from joint names)")
     importer.add_argument(
@@ -192,8 +202,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     maker = commands.add_parser("make", help="generate a procedural motion, save as .npz")
     maker.add_argument("name", choices=tuple(PROCEDURAL_MOTIONS), help="which motion")
     maker.add_argument("--out", required=True, help="the motion file to write (.npz)")
-    maker.add_argument("--frames", type=int, help="number of frames (default: the motion's own)")
-    maker.add_argument("--fps", type=float, default=30.0, help="frames per second")
+    maker.add_argument(
+        "--frames",
+        type=Integer(1, MAX_PROCEDURAL_FRAMES),
+        help="number of frames (default: the motion's own)",
+    )
+    maker.add_argument("--fps", type=FPS, default=30.0, help="frames per second")
     _add_body_options(maker)
     maker.set_defaults(func=_make)
 
@@ -206,7 +220,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     preview.add_argument("clips", nargs="+", help="motion files, BVH files or procedural motion names")
     preview.add_argument("--out", required=True, help="the image to write (.png)")
-    preview.add_argument("--frames-per-clip", type=int, default=5)
-    preview.add_argument("--dpi", type=int, default=80)
+    preview.add_argument("--frames-per-clip", type=Integer(1, MAX_PREVIEW_FRAMES), default=5)
+    preview.add_argument("--dpi", type=Integer(MIN_DPI, MAX_DPI), default=80)
     _add_body_options(preview)
     preview.set_defaults(func=_preview)

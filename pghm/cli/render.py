@@ -12,19 +12,16 @@ import argparse
 import sys
 from pathlib import Path
 
-from pghm.errors import PghmError
-from pghm.render import DEFAULT_FPS, DEFAULT_SIZE, RenderJob, render_video
+from pghm.cli.options import INDEX, Integer, Real, Size
+from pghm.data.motion import MAX_FPS, MIN_FPS
+from pghm.render import DEFAULT_FPS, DEFAULT_SIZE, MAX_RENDER_FRAMES, RenderJob, render_video
 
-
-def parse_size(text: str) -> tuple[int, int]:
-    """'640x480' -> (640, 480)."""
-    try:
-        width, height = (int(part) for part in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"size must look like 640x480, got {text!r}") from None
-    if width < 1 or height < 1:
-        raise argparse.ArgumentTypeError(f"size must be positive, got {text!r}")
-    return width, height
+MAX_SECONDS = 1e6
+"""Largest --start in seconds (11 days into a clip, which loops)."""
+MAX_ANGLE = 3600.0
+"""Largest |--yaw| in degrees (ten turns)."""
+PITCH_LIMIT = 90.0
+"""Largest |--pitch| in degrees: straight above or below the body."""
 
 
 def parse_colour(text: str) -> tuple[float, float, float]:
@@ -48,32 +45,49 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", type=Path, required=True, help="out.mp4, out.png (one frame) or a directory")
     parser.add_argument("--motion", help="motion file (.npz, .bvh) or procedural name (walk, squat, ...)")
     parser.add_argument("--orbit", action="store_true", help="turn the camera once around the body")
-    parser.add_argument("--size", type=parse_size, default=DEFAULT_SIZE, help="WxH pixels (default 640x480)")
-    parser.add_argument("--fps", type=float, default=DEFAULT_FPS, help="frames per second (default 30)")
-    parser.add_argument("--frames", type=int, help="number of frames (default: the motion once / one orbit / 1)")
-    parser.add_argument("--start", type=float, default=0.0, help="seconds into the motion of the first frame")
+    parser.add_argument("--size", type=Size(), default=DEFAULT_SIZE, help="WxH pixels (default 640x480)")
+    parser.add_argument(
+        "--fps",
+        type=Real(MIN_FPS, MAX_FPS),
+        default=DEFAULT_FPS,
+        help="frames per second (default 30)",
+    )
+    parser.add_argument(
+        "--frames",
+        type=Integer(1, MAX_RENDER_FRAMES),
+        help="number of frames (default: the motion once / one orbit / 1)",
+    )
+    parser.add_argument(
+        "--start",
+        type=Real(-MAX_SECONDS, MAX_SECONDS),
+        default=0.0,
+        help="seconds into the motion of the first frame",
+    )
     parser.add_argument(
         "--backend",
         choices=("auto", "gl", "cpu"),
         default="auto",
         help="gl (OpenGL through EGL), cpu (the CPU splatter) or auto (default: gl if EGL works, else cpu)",
     )
-    parser.add_argument("--identity", type=int, default=0, help="identity of a prior's bank")
+    parser.add_argument("--identity", type=INDEX, default=0, help="identity of a prior's bank")
     parser.add_argument("--static", action="store_true", help="render the static Gaussians (I_s)")
     parser.add_argument("--no-view-dependent", action="store_true", help="leave out the view-dependent colour")
     parser.add_argument(
         "--background", type=parse_colour, default=(1.0, 1.0, 1.0), help="r,g,b in [0, 1], #rrggbb, white or black"
     )
-    parser.add_argument("--pitch", type=float, default=0.0, help="camera elevation, degrees")
-    parser.add_argument("--yaw", type=float, default=0.0, help="camera azimuth, degrees (0: front)")
+    parser.add_argument("--pitch", type=Real(-PITCH_LIMIT, PITCH_LIMIT), default=0.0, help="camera elevation, degrees")
+    parser.add_argument(
+        "--yaw",
+        type=Real(-MAX_ANGLE, MAX_ANGLE),
+        default=0.0,
+        help="camera azimuth, degrees (0: front)",
+    )
     parser.add_argument("--no-follow", action="store_true", help="keep the camera still when the body moves")
     parser.add_argument("--body-model-path", help="the SMPL-X model file, for SMPL-X avatars")
     parser.set_defaults(func=run_render)
 
 
 def run_render(args: argparse.Namespace) -> int:
-    if args.fps <= 0:
-        raise PghmError(f"--fps must be positive, got {args.fps}")
     job = RenderJob(
         avatar=args.avatar,
         out=args.out,

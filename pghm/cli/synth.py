@@ -9,11 +9,17 @@ from __future__ import annotations
 
 import argparse
 
+from pghm.cli.options import SEED, Integer
 from pghm.data.synth.config import PRESETS, load_config
 from pghm.data.synth.generate import generate
+from pghm.io.outputs import check_output
+
+MAX_WORKERS = 64
+"""Most render processes (each holds a GL context and a body model)."""
 
 
 def _synth(args: argparse.Namespace) -> int:
+    check_output(args.out, inputs=[args.config], folder=True)
     config = load_config(args.config)
     report = generate(config, args.seed, args.out, workers=args.workers, progress=not args.quiet)
     print(
@@ -34,8 +40,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default="tiny",
         help=f"a preset ({', '.join(PRESETS)}) or a JSON file of SynthConfig fields (default: tiny)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
+    parser.add_argument("--seed", type=SEED, default=0, help="dataset seed (default 0)")
     parser.add_argument("--out", required=True, help="new (or empty) output folder")
-    parser.add_argument("--workers", type=int, default=2, help="render processes (default 2, one per core)")
+    parser.add_argument(
+        "--workers",
+        type=Integer(1, MAX_WORKERS),
+        default=2,
+        help="render processes (default 2, one per core)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.set_defaults(func=_synth)

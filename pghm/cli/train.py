@@ -6,35 +6,60 @@ import argparse
 import json
 import logging
 import sys
+from pathlib import Path
 
+from pghm.cli.options import MAX_INDEX, POSITIVE_STEPS, SEED, STEPS, Integer, Real
 from pghm.cli.render import parse_colour
+from pghm.errors import PghmError
+from pghm.io.outputs import check_output
 from pghm.model import ModelConfig
+from pghm.model.config import MAX_CHANNELS
 from pghm.train.background import BACKGROUND_KINDS, WHITE
 from pghm.train.fit import FitConfig
-from pghm.train.loop import LoopConfig
+from pghm.train.loop import MAX_LEARNING_RATE, LoopConfig
 from pghm.train.losses import LossWeights
 from pghm.train.prior import PriorConfig
+from pghm.uv.atlas import MAX_RESOLUTION, MIN_RESOLUTION
+
+MAX_IMAGES_PER_GROUP = 10_000
+"""Parser bound of --images; the loop also refuses a group whose images would not fit in memory."""
+MAX_SHARDS = 1024
+MAX_POSE_PRIOR = 100.0
+"""Largest --pose-prior weight: 2e5 times the default, past which the loss overflows float32."""
+MAX_SILHOUETTE = 100.0
+"""Largest --silhouette weight: 100 times the default, far past where the mask term dominates the photometric ones."""
+MAX_POSE_SMOOTHING = 100.0
+"""Largest --pose-smoothing sigma, in frames (the filter's support is a few sigma)."""
+LEARNING_RATE = Real(0.0, MAX_LEARNING_RATE, open_low=True)
 
 
 def _model_arguments(parser: argparse.ArgumentParser) -> None:
     defaults = ModelConfig()
     group = parser.add_argument_group("model (prior training only)")
     group.add_argument(
-        "--uv-resolution", type=int, default=defaults.uv_resolution, help="L, texels per side (default %(default)s)"
+        "--uv-resolution",
+        type=Integer(MIN_RESOLUTION, MAX_RESOLUTION),
+        default=defaults.uv_resolution,
+        help="L, texels per side (default %(default)s)",
     )
-    group.add_argument("--latent-channels", type=int, default=defaults.latent_channels, help="C (default %(default)s)")
+    group.add_argument(
+        "--latent-channels",
+        type=Integer(1, MAX_CHANNELS),
+        default=defaults.latent_channels,
+        help="C (default %(default)s)",
+    )
     group.add_argument(
         "--head", choices=("multi", "single"), default=defaults.head, help="U-Net heads (default %(default)s)"
     )
 
 
-def _loop_arguments(parser: argparse.ArgumentParser, prefix: str, defaults: LoopConfig) -> None:
+def _loop_arguments(parser: argparse.ArgumentParser, prefix: str, defaults: LoopConfig, steps: Integer) -> None:
     parser.add_argument(
-        f"--{prefix}steps", type=int, default=defaults.steps, help="optimisation steps (default %(default)s)"
+        f"--{prefix}steps", type=steps, default=defaults.steps, help="optimisation steps (default %(default)s)"
     )
     parser.add_argument(
         f"--{prefix}images",
-        type=int,
+        type=Integer(1, MAX_IMAGES_PER_GROUP),
         default=defaults.images_per_shard,
         help="images per identity group (default %(default)s)",
     )
@@ -42,15 +67,19 @@ def _loop_arguments(parser: argparse.ArgumentParser, prefix: str, defaults: Loop
 
 def _common(parser: argparse.ArgumentParser, loop: LoopConfig) -> None:
     loss = loop.loss
-    parser.add_argument("--seed", type=int, default=0, help="seeds the batch plan (default %(default)s)")
+    parser.add_argument("--seed", type=SEED, default=0, help="seeds the batch plan (default %(default)s)")
     parser.add_argument(
-        "--checkpoint-every", type=int, default=100, help="steps between checkpoints (default %(default)s)"
+        "--checkpoint-every",
+        type=STEPS,
+        default=100,
+        help="steps between checkpoints; 0: only on Ctrl-C. OUT.ckpt is removed once OUT is written "
+        "(default %(default)s)",
     )
     parser.add_argument("--resume", action="store_true", help="continue from OUT.ckpt")
     parser.add_argument("--no-pose-refinement", action="store_true", help="keep the stored poses fixed")
     parser.add_argument(
         "--pose-prior",
-        type=float,
+        type=Real(0.0, MAX_POSE_PRIOR),
         default=loss.pose_prior,
         help="weight of a Gaussian prior holding the pose corrections near the estimate; 0: off (default %(default)s)",
     )
@@ -63,7 +92,7 @@ def _common(parser: argparse.ArgumentParser, loop: LoopConfig) -> None:
     )
     parser.add_argument(
         "--silhouette",
-        type=float,
+        type=Real(0.0, MAX_SILHOUETTE),
         default=loss.silhouette,
         help="weight of the L1 term between the render's alpha and the mask; 0: off (default %(default)s)",
     )
@@ -75,14 +104,22 @@ def register(subparsers) -> None:
     prior = subparsers.add_parser("train-prior", help="train a prior over many identities (multi-view data)")
     prior.add_argument("data_dir", help="a folder of subject folders (pghm synth --config prior)")
     prior.add_argument("--out", required=True, help="prior file to write, e.g. prior.pt")
-    _loop_arguments(prior, "", PriorConfig().loop)
+    _loop_arguments(prior, "", PriorConfig().loop, POSITIVE_STEPS)
     prior.add_argument(
-        "--shards", type=int, default=1, help="identity groups per step; a multiple of the torchrun processes"
+        "--shards",
+        type=Integer(1, MAX_SHARDS),
+        default=1,
+        help="identity groups per step; a multiple of the torchrun processes",
     )
     prior.add_argument(
-        "--lr", type=float, default=PriorConfig().network_lr, help="network learning rate (default %(default)s)"
+        "--lr", type=LEARNING_RATE, default=PriorConfig().network_lr, help="network learning rate (default %(default)s)"
     )
-    prior.add_argument("--identities", type=int, default=None, help="train on the first N subjects only (default: all)")
+    prior.add_argument(
+        "--identities",
+        type=Integer(1, MAX_INDEX),
+        default=None,
+        help="train on the first N subjects only (default: all)",
+    )
     _model_arguments(prior)
     _common(prior, PriorConfig().loop)
     prior.set_defaults(func=run_train_prior)
@@ -92,11 +129,11 @@ def register(subparsers) -> None:
     fit.add_argument("--prior", required=True, help="prior file (pghm train-prior), or 'scratch' to train from nothing")
     fit.add_argument("--out", required=True, help="avatar file to write, e.g. avatar.pt")
     fit_defaults = FitConfig()
-    _loop_arguments(fit, "stage1-", fit_defaults.stage1)
-    _loop_arguments(fit, "stage2-", fit_defaults.stage2)
+    _loop_arguments(fit, "stage1-", fit_defaults.stage1, STEPS)
+    _loop_arguments(fit, "stage2-", fit_defaults.stage2, STEPS)
     fit.add_argument(
         "--pose-smoothing",
-        type=float,
+        type=Real(0.0, MAX_POSE_SMOOTHING),
         default=fit_defaults.pose_smoothing,
         help="sigma in frames of the temporal filter on the estimated poses; 0: as stored (default %(default)s)",
     )
@@ -127,6 +164,7 @@ def _logging() -> None:
 def run_train_prior(args: argparse.Namespace) -> int:
     from pghm.train.prior import train_prior
 
+    check_output(args.out, inputs=[args.data_dir, args.body_model_path])
     _logging()
     model = ModelConfig(uv_resolution=args.uv_resolution, latent_channels=args.latent_channels, head=args.head)
     loop = LoopConfig(
@@ -158,6 +196,7 @@ def run_train_prior(args: argparse.Namespace) -> int:
 def run_fit(args: argparse.Namespace) -> int:
     from pghm.train.fit import fit
 
+    check_output(args.out, inputs=[args.subject_dir, args.prior, args.body_model_path])
     _logging()
     stages = [
         LoopConfig(
@@ -189,6 +228,11 @@ def run_eval(args: argparse.Namespace) -> int:
 
     report = args.report or f"{args.avatar}.eval.json"
     strip = args.strip or f"{args.avatar}.eval.png"
+    inputs = [args.avatar, args.subject_dir, args.body_model_path]
+    check_output(report, inputs=inputs, option="--report")
+    check_output(strip, inputs=inputs, option="--strip")
+    if Path(report).resolve() == Path(strip).resolve():
+        raise PghmError(f"--report and --strip are the same file ({report}); give two names")
     result = evaluate(
         args.avatar,
         args.subject_dir,

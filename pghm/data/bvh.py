@@ -64,6 +64,9 @@ MIN_FRAME_TIME = 1.0 / MAX_FPS
 """Shortest frame time accepted (seconds): the motion files' highest frame rate. A shorter one
 (a denormal such as 5e-324) would make the frame rate overflow to infinity."""
 MAX_JOINTS = 1024
+MAX_VALUE = 1e6
+"""Largest |value| of an OFFSET or a channel: 1 km in millimetres, 2,777 turns in degrees. Larger
+numbers are corrupt data that would overflow float32 once retargeted (a 1e40 position did)."""
 """More joints than any motion-capture rig (full hands and face are a few hundred)."""
 
 _COUNT_RE = re.compile(r"[0-9]{1,15}")
@@ -232,8 +235,8 @@ class _Tokens:
             value = float(token)
         except ValueError:
             raise self.error(f"{what}: '{token}' is not a number", line) from None
-        if not np.isfinite(value):
-            raise self.error(f"{what}: '{token}' is not a finite number", line)
+        if not abs(value) <= MAX_VALUE:
+            raise self.error(f"{what}: '{token}' is not a finite number within +-{MAX_VALUE:g}", line)
         return value
 
 
@@ -407,11 +410,12 @@ def _parse_motion(lines: list[str], start: int, num_channels: int, where: str) -
         raise _row_error(lines, rows, num_channels, where) from None
     if values.shape != (frames, num_channels):
         raise _row_error(lines, rows, num_channels, where)
-    finite = np.isfinite(values)
-    if not finite.all():
-        row, column = np.argwhere(~finite)[0]
+    sane = np.abs(values) <= MAX_VALUE  # False for NaN too
+    if not sane.all():
+        row, column = np.argwhere(~sane)[0]
         raise MotionFileError(
-            f"{where}: line {rows[row] + 1}: value {column + 1} is {values[row, column]}, not a finite number"
+            f"{where}: line {rows[row] + 1}: value {column + 1} is {values[row, column]:g}, "
+            f"not a finite number within +-{MAX_VALUE:g}"
         )
     return frame_time, values
 

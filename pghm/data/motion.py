@@ -29,6 +29,10 @@ from pghm.io.read_errors import NPZ_READ_ERRORS
 MOTION_KEYS = ("rotations", "translation", "fps", "body", "bone_names", "source")
 MAX_FRAMES = 100_000
 """Longest clip accepted (about 55 minutes at 30 fps; 100k x 104 bones x 3 floats = 125 MB)."""
+MAX_ROTATION = 1e3
+"""Largest |axis-angle component| accepted, in radians (160 turns; stored clips stay within pi)."""
+MAX_TRANSLATION = 1e4
+"""Largest |root translation| accepted, in metres (10 km from the origin)."""
 MIN_FPS = 1e-3
 MAX_FPS = 1e6
 """Frame rates accepted: far beyond any capture (24 to 1000 fps) either way, but bounded, so
@@ -61,8 +65,9 @@ class Motion:
     source: str = ""
 
     def __post_init__(self) -> None:
-        self.rotations = np.asarray(self.rotations, dtype=np.float32)
-        self.translation = np.asarray(self.translation, dtype=np.float32)
+        with np.errstate(over="ignore"):  # a value beyond float32 becomes inf, refused below by name
+            self.rotations = np.asarray(self.rotations, dtype=np.float32)
+            self.translation = np.asarray(self.translation, dtype=np.float32)
         frames = self.rotations.shape[0] if self.rotations.ndim == 3 else -1
         if self.rotations.ndim != 3 or self.rotations.shape[1:] != (len(self.bone_names), 3):
             raise MotionFileError(
@@ -78,9 +83,16 @@ class Motion:
             raise MotionFileError(
                 f"motion 'fps' must be a positive number from {MIN_FPS:g} to {MAX_FPS:g}, got {self.fps}"
             )
-        for name in ("rotations", "translation"):
-            if not np.isfinite(getattr(self, name)).all():
-                raise MotionFileError(f"motion '{name}' has non-finite values")
+        for name, limit, unit in (("rotations", MAX_ROTATION, "rad"), ("translation", MAX_TRANSLATION, "m")):
+            values = getattr(self, name)
+            sane = np.abs(values) <= limit  # False for NaN too
+            if not sane.all():
+                where = np.argwhere(~sane)[0]
+                entry = f"frame {where[0]}" + (f", bone '{self.bone_names[where[1]]}'" if name == "rotations" else "")
+                raise MotionFileError(
+                    f"motion '{name}' at {entry} is {values[tuple(where)]:g}, "
+                    f"not a finite number within +-{limit:g} {unit}"
+                )
 
     @property
     def num_frames(self) -> int:

@@ -18,8 +18,8 @@ A dataset (the prior's training set) is a folder of subject folders with a meta.
 {"format": "pghm-dataset", "format_version": 1, "subjects": [folder names], ...}.
 
 :class:`Subject` keeps the small arrays in memory and reads an image only when its
-:class:`Frame` is requested. :func:`check` streams through a subject or dataset, reading
-only PNG headers for images and decoding one mask at a time.
+:class:`Frame` is requested. :func:`check` streams through a subject or dataset, decoding
+one image or mask at a time.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from pghm.data.motion import MAX_ROTATION, MAX_TRANSLATION
 from pghm.errors import DatasetError
 from pghm.io.atomic import atomic_write_bytes
 from pghm.io.read_errors import IMAGE_READ_ERRORS, NPZ_READ_ERRORS
@@ -284,6 +285,53 @@ def _non_numeric(arrays: dict[str, np.ndarray], keys: tuple[str, ...]) -> list[t
 
 MAX_FRAME_INDEX = 10**6
 """Largest frame_index accepted: one pose-correction slot is allocated per frame up to it."""
+MAX_INTRINSIC = 1e7
+"""Largest |entry| of K, in pixels (a focal length of 1e7 px is a 0.006 degree field of view)."""
+VALUE_BOUNDS = {
+    ("cameras.npz", "K"): (MAX_INTRINSIC, "px"),
+    ("cameras.npz", "world_to_camera"): (MAX_TRANSLATION, "m"),
+    ("poses.npz", "rotations"): (MAX_ROTATION, "rad"),
+    ("poses.npz", "translation"): (MAX_TRANSLATION, "m"),
+    ("poses.npz", "rotations_true"): (MAX_ROTATION, "rad"),
+    ("poses.npz", "translation_true"): (MAX_TRANSLATION, "m"),
+}
+"""Largest |value| of each array (the bounds of motion files, pghm.data.motion): a pose of 1e20
+rad or a camera 1e40 m away is corrupt data, refused at the loader rather than met as a NaN."""
+
+
+def value_problems(
+    cameras: dict[str, np.ndarray], poses: dict[str, np.ndarray] | None
+) -> list[tuple[str, str, np.ndarray]]:
+    """(file, problem, per-image mask) for values out of bounds (NaN included) and camera rotations
+    that are not rotations; the arrays' shapes must already be right. Shared by the loader (which
+    raises the first) and ``pghm data check`` (which lists them all)."""
+    found = []
+    for (file, key), (limit, unit) in VALUE_BOUNDS.items():
+        arrays = cameras if file == "cameras.npz" else poses
+        if arrays is None or key not in arrays:
+            continue
+        values = arrays[key].astype(np.float64).reshape(len(arrays[key]), -1)
+        finite = np.isfinite(values).all(1)
+        if not finite.all():
+            found.append((file, f"'{key}' is not finite", ~finite))
+            continue
+        huge = (np.abs(values) > limit).any(1)
+        if huge.any():
+            found.append((file, f"'{key}' is beyond +-{limit:g} {unit} ({values[huge][0].max():g})", huge))
+    E = cameras["world_to_camera"].astype(np.float64)
+    finite = np.isfinite(E).reshape(len(E), -1).all(1)
+    with np.errstate(all="ignore"):
+        rotation = E[:, :3, :3]
+        gram = np.einsum("nji,njk->nik", rotation, rotation) - np.eye(3)
+        not_rigid = finite & (
+            (np.abs(gram).reshape(len(E), -1).max(1) > ROTATION_TOLERANCE)
+            | (np.abs(np.linalg.det(rotation) - 1.0) > ROTATION_TOLERANCE)
+            | (np.abs(E[:, 3] - np.array([0.0, 0.0, 0.0, 1.0])).max(1) > ROTATION_TOLERANCE)
+        )
+    if not_rigid.any():
+        message = "world_to_camera is not a rigid transform (its rotation is not a rotation)"
+        found.append(("cameras.npz", message, not_rigid))
+    return found
 
 
 def _check_values(directory: Path, cameras: dict[str, np.ndarray], poses: dict[str, np.ndarray]) -> None:
@@ -299,16 +347,8 @@ def _check_values(directory: Path, cameras: dict[str, np.ndarray], poses: dict[s
             f"{directory / file}: {message} for image(s) {_indices(bad)}; run pghm data check {directory}"
         )
 
-    for file, arrays, keys in (
-        ("cameras.npz", cameras, ("K", "world_to_camera")),
-        ("poses.npz", poses, ("rotations", "translation", "rotations_true", "translation_true")),
-    ):
-        for key in keys:
-            if key in arrays:
-                values = arrays[key].astype(np.float64)
-                bad = ~np.isfinite(values.reshape(len(values), -1)).all(1)
-                if bad.any():
-                    raise fail(file, f"'{key}' is not finite", bad)
+    for file, message, bad in value_problems(cameras, poses):
+        raise fail(file, message, bad)
     K = cameras["K"].astype(np.float64)
     bad_focal = ~((K[:, 0, 0] > 0) & (K[:, 1, 1] > 0))
     if bad_focal.any():
@@ -555,24 +595,15 @@ def _indices(mask: np.ndarray) -> str:
 def _check_cameras(cameras: dict, poses: dict | None, problems: list[Problem]) -> None:
     K = cameras["K"].astype(np.float64)
     E = cameras["world_to_camera"].astype(np.float64)
-    for name, array in (("K", K), ("world_to_camera", E)):
-        bad = ~np.isfinite(array).reshape(len(array), -1).all(1)
-        if bad.any():
-            problems.append(Problem("cameras.npz", f"{name} is not finite for image(s) {_indices(bad)}"))
     finite = np.isfinite(K).reshape(len(K), -1).all(1) & np.isfinite(E).reshape(len(E), -1).all(1)
     bad_focal = finite & ~((K[:, 0, 0] > 0) & (K[:, 1, 1] > 0))
     if bad_focal.any():
         problems.append(Problem("cameras.npz", f"K has a non-positive focal length for image(s) {_indices(bad_focal)}"))
     rotation = E[:, :3, :3]
-    gram = np.einsum("nji,njk->nik", rotation, rotation) - np.eye(3)
-    not_rigid = finite & (
-        (np.abs(gram).reshape(len(E), -1).max(1) > ROTATION_TOLERANCE)
-        | (np.abs(E[:, 3] - np.array([0.0, 0.0, 0.0, 1.0])).max(1) > ROTATION_TOLERANCE)
-    )
-    if not_rigid.any():
-        problems.append(
-            Problem("cameras.npz", f"world_to_camera is not a rigid transform for image(s) {_indices(not_rigid)}")
-        )
+    not_rigid = np.zeros(len(E), bool)
+    for _, message, bad in value_problems(cameras, None):
+        if message.startswith("world_to_camera is not a rigid"):
+            not_rigid |= bad
     if poses is None or poses["translation"].shape != (len(E), 3):
         return
     # The subject's centre (its root translation) must lie in front of each camera and
@@ -605,8 +636,9 @@ def _check_cameras(cameras: dict, poses: dict | None, problems: list[Problem]) -
         )
 
 
-def _check_png(path: Path, label: str, mode: str, size: tuple[int, int], problems: list[Problem], decode: bool) -> None:
-    """Header checks (size, mode) of one PNG; masks are decoded to test they are binary."""
+def _check_png(path: Path, label: str, mode: str, size: tuple[int, int], problems: list[Problem], binary: bool) -> None:
+    """Size and mode of one PNG, and its pixels decoded (a truncated file fails there, not in
+    training); a mask (``binary``) must hold only 0 and 255."""
     if not path.is_file():
         problems.append(Problem(label, "missing"))
         return
@@ -621,7 +653,8 @@ def _check_png(path: Path, label: str, mode: str, size: tuple[int, int], problem
                 )
             if image.mode != mode:
                 problems.append(Problem(label, f"mode {image.mode}, expected {mode}"))
-            if decode and image.mode in ("L", "1", "P", "LA", "RGB", "RGBA"):
+            image.load()
+            if binary and image.mode in ("L", "1", "P", "LA", "RGB", "RGBA"):
                 values = np.unique(np.asarray(image.convert("L")))
                 if not np.isin(values, (0, 255)).all():
                     problems.append(
@@ -634,8 +667,8 @@ def _check_png(path: Path, label: str, mode: str, size: tuple[int, int], problem
 def check_subject(directory: str | Path) -> list[Problem]:
     """Every problem found in a subject folder (empty when it is valid).
 
-    Reads the small files whole, then streams through the images (PNG headers only) and
-    the masks (decoded one at a time to test they are binary).
+    Reads the small files whole, then streams through the images and masks, decoding each
+    (one at a time) so a truncated PNG is found here; masks must be binary.
     """
     directory = Path(directory)
     problems: list[Problem] = []
@@ -672,14 +705,14 @@ def check_subject(directory: str | Path) -> list[Problem]:
             if poses[key].shape != shape:
                 problems.append(Problem("poses.npz", f"'{key}' has shape {poses[key].shape}, expected {shape}"))
                 continue
-            bad = ~np.isfinite(poses[key].astype(np.float64)).reshape(n, -1).all(1)
-            if bad.any():
-                problems.append(Problem("poses.npz", f"'{key}' is not finite for image(s) {_indices(bad)}"))
         if not np.isfinite(np.asarray(poses["shape"], dtype=np.float64)).all():
             problems.append(Problem("poses.npz", "'shape' is not finite"))
         if poses["translation"].shape != (n, 3):
             poses = None
     if shapes_ok:
+        pose_values = poses if poses is not None and all(p.path != "poses.npz" for p in problems) else None
+        for file, message, bad in value_problems(cameras, pose_values):
+            problems.append(Problem(file, f"{message} for image(s) {_indices(bad)}"))
         _check_cameras(cameras, poses, problems)
 
     splits_path = directory / "splits.json"
@@ -715,11 +748,11 @@ def check_subject(directory: str | Path) -> list[Problem]:
         stray = sorted(p.name for p in (directory / folder).glob("*.png") if p.name not in expected_names)
         for name in stray:
             problems.append(Problem(f"{folder}/{name}", f"not one of the {n} images cameras.npz describes"))
-        mode, decode = ("RGB", False) if folder == "images" else ("L", True)
+        mode = "RGB" if folder == "images" else "L"
         for i in range(n):
             size = (int(cameras["width"][i]), int(cameras["height"][i]))
             name = image_name(i)
-            _check_png(directory / folder / name, f"{folder}/{name}", mode, size, problems, decode)
+            _check_png(directory / folder / name, f"{folder}/{name}", mode, size, problems, binary=folder == "masks")
     return problems
 
 

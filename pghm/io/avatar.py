@@ -67,7 +67,7 @@ class Avatar:
         """F (1, C, L, L): the personal latent of an avatar, or identity ``index`` of a prior."""
         if self.latent is not None:
             return self.latent
-        self._check_identity(index)
+        self.check_identity(index)
         with torch.no_grad():
             return self.model.decode_identity(index)
 
@@ -75,7 +75,7 @@ class Avatar:
         """(S,) the body shape of identity ``index`` (the avatar's own for an avatar)."""
         if self.shapes is None:
             return self.shape
-        self._check_identity(index)
+        self.check_identity(index)
         return self.shapes[index]
 
     def member(self, index: int) -> Avatar:
@@ -92,7 +92,14 @@ class Avatar:
             metadata={**self.metadata, "prior_identity": index},
         )
 
-    def _check_identity(self, index: int) -> None:
+    def check_identity(self, index: int) -> None:
+        """PghmError unless ``index`` picks a member of a prior's bank (an avatar is one person: 0 only)."""
+        if self.kind != "prior":
+            if index != 0:
+                raise PghmError(
+                    f"identity {index!r}: this is a personalised avatar (one person); --identity picks a prior's member"
+                )
+            return
         count = self.model.num_identities
         try:
             position = operator.index(index)

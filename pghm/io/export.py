@@ -41,6 +41,7 @@ def export_posed_ply(
     from pghm.model.evaluator import CachedEvaluator
 
     avatar = load_avatar(avatar_path)
+    avatar.check_identity(identity)
     body = load_body(avatar.body_name, body_model_path)
     motion = open_motion(pose_source, body, avatar.shape_of(identity))
     if not 0 <= frame < motion.num_frames:

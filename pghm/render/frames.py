@@ -21,6 +21,9 @@ from pghm.splat import Camera
 
 Backend = Literal["auto", "gl", "cpu"]
 
+GL_SIZE_LIMITS = ("GL_MAX_TEXTURE_SIZE", "GL_MAX_RENDERBUFFER_SIZE", "GL_MAX_VIEWPORT_DIMS")
+"""The context limits an offscreen image of W x H must fit (each side)."""
+
 
 class GLFrames:
     """Gaussian arrays -> float RGB through the GL sprite renderer on a headless EGL context.
@@ -35,6 +38,16 @@ class GLFrames:
         self.renderer = SpriteRenderer(self.ctx)
         self.driver = str(driver_info(self.ctx))
         self._arrays: GaussianArrays | None = None
+
+    def check_size(self, width: int, height: int) -> None:
+        """PghmError, before anything is allocated, when W x H exceeds one of the context's GL_SIZE_LIMITS."""
+        for name in GL_SIZE_LIMITS:
+            limit = min(np.atleast_1d(self.ctx.info[name]))
+            if max(width, height) > limit:
+                raise PghmError(
+                    f"--size {width}x{height} is beyond this OpenGL context's {name} of {limit}; "
+                    "render smaller, or with --backend cpu"
+                )
 
     def render(self, arrays: GaussianArrays, camera: Camera, background: tuple[float, float, float]) -> np.ndarray:
         """(H, W, 3) float32 image, row 0 at the top."""
@@ -52,6 +65,9 @@ class CPUFrames:
     """Gaussian arrays -> float RGB through the CPU splatter ``pghm.splat.render`` (the spec)."""
 
     driver = "CPU splatter (pghm.splat)"
+
+    def check_size(self, width: int, height: int) -> None:
+        """Any size within the render job's pixel budget (checked there)."""
 
     def render(self, arrays: GaussianArrays, camera: Camera, background: tuple[float, float, float]) -> np.ndarray:
         """(H, W, 3) float32 image, row 0 at the top."""

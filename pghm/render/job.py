@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from pghm.errors import PghmError
+from pghm.io.outputs import check_output
+from pghm.test_hook import interrupt_point
 from pghm.render.driver import AvatarDriver, GaussianSet
 from pghm.render.frame_cache import FrameCache, PackedFrame
 from pghm.render.frames import Backend, CPUFrames, frame_renderer
@@ -28,6 +30,9 @@ DEFAULT_SIZE = (640, 480)
 DEFAULT_FPS = 30.0
 ORBIT_SECONDS = 4.0
 """An orbit without a motion lasts this long (one full turn)."""
+MAX_RENDER_PIXELS = 2**26
+"""Largest image (W x H) one render makes, 8192 x 8192: its float buffers alone take 0.8 GB, the
+splatter's per-pixel state several times that; larger asks are refused before any allocation."""
 MAX_RENDER_FRAMES = 1_000_000
 """Most frames one ``pghm render`` writes (9 hours at 30 fps): a motion with an absurd
 duration, or an absurd --frames, is refused before a frame list is built."""
@@ -144,12 +149,14 @@ def render_video(job: RenderJob, log: Callable[[str], None] = print) -> RenderSu
     from pghm.io.avatar import load_avatar
 
     width, height = job.size
-    if width < 1 or height < 1:
-        raise PghmError(f"--size must be positive, got {width}x{height}")
-    output_kind(job.out)  # reject a bad output name before the slow work
+    if width < 1 or height < 1 or width * height > MAX_RENDER_PIXELS:
+        raise PghmError(
+            f"--size {width}x{height}: each side must be positive and the image at most {MAX_RENDER_PIXELS:,} pixels"
+        )
+    folder = output_kind(job.out) == "dir"  # a bad output name is refused before the slow work
+    check_output(job.out, inputs=[job.avatar, job.motion], folder=folder)
     avatar = load_avatar(job.avatar)
-    if avatar.kind == "prior" and not 0 <= job.identity < avatar.model.num_identities:
-        raise PghmError(f"--identity must be in [0, {avatar.model.num_identities}), got {job.identity}")
+    avatar.check_identity(job.identity)
     driver = AvatarDriver(avatar, job.identity, job.body_model_path)
     motion = open_motion(job.motion, driver.body, driver.geometry.shape) if job.motion else None
     specs = plan_frames(job, motion)
@@ -168,6 +175,7 @@ def render_video(job: RenderJob, log: Callable[[str], None] = print) -> RenderSu
     sink = open_sink(job.out, job.fps, on_fallback=log)
     try:
         with frame_renderer(job.backend, log) as renderer:
+            renderer.check_size(width, height)
             for spec in specs:
                 pose = motion.pose(spec.motion_frame) if motion is not None else driver.rest_pose()
                 target = np.asarray(framing.target, dtype=np.float64)
@@ -191,6 +199,7 @@ def render_video(job: RenderJob, log: Callable[[str], None] = print) -> RenderSu
                 totals["render_ms"] += (time.perf_counter() - start) * 1e3
                 start = time.perf_counter()
                 sink.write(to_uint8(rgb))
+                interrupt_point("render-frame")
                 totals["write_ms"] += (time.perf_counter() - start) * 1e3
             driver_name = renderer.driver
     except BaseException:

@@ -17,6 +17,7 @@ import numpy as np
 
 from pghm.errors import PghmError
 from pghm.io.atomic import PendingFile, atomic_write_bytes
+from pghm.io.outputs import StagedFolder, check_output
 
 PNG_PATTERN = "frame_{:05d}.png"
 """File names of a PNG sequence."""
@@ -119,21 +120,24 @@ def _png_bytes(image: np.ndarray) -> bytes:
 
 
 class PngSequenceSink:
-    """frame_00000.png, frame_00001.png, ... in a directory (each written atomically)."""
+    """frame_00000.png, frame_00001.png, ... in a new (or empty) directory, built in a hidden
+    sibling and moved into place by :meth:`close`: an interrupted render leaves no frames."""
 
     def __init__(self, directory: Path) -> None:
         self.path, self.frames = directory, 0
-        directory.mkdir(parents=True, exist_ok=True)
+        self._staged = StagedFolder(directory)
 
     def write(self, image: np.ndarray) -> None:
-        atomic_write_bytes(self.path / PNG_PATTERN.format(self.frames), _png_bytes(image))
+        atomic_write_bytes(self._staged.path / PNG_PATTERN.format(self.frames), _png_bytes(image))
         self.frames += 1
 
     def close(self) -> None:
-        """Nothing buffered: each frame is a file."""
+        """Move the finished sequence to ``path``."""
+        self._staged.commit()
 
     def abort(self) -> None:
-        """The frames written so far stay: each is a complete file."""
+        """Remove the frames written so far."""
+        self._staged.discard()
 
 
 class PngFileSink:
@@ -179,7 +183,7 @@ def open_sink(path: str | Path, fps: float, on_fallback: Callable[[str], None] |
         return PngSequenceSink(path)
     if encoder_available():
         return Mp4Sink(path, fps)
-    directory = path.with_name(f"{path.stem}_frames")
+    directory = check_output(path.with_name(f"{path.stem}_frames"), folder=True)
     if on_fallback is not None:
         on_fallback(f"no MP4 encoder (imageio-ffmpeg) found: writing a PNG sequence to {directory}/ instead")
     return PngSequenceSink(directory)

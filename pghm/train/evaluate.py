@@ -142,6 +142,13 @@ def evaluate(
     if avatar.kind != "avatar":
         raise PghmError("eval needs a personalised avatar (from pghm fit), not a prior")
     data = TrainingData(subject_dir, split=split, true_poses=true_poses)
+    if data.num_identities != 1:
+        names = ", ".join(subject.directory.name for subject in data.subjects[:5])
+        more = ", ..." if data.num_identities > 5 else ""
+        raise PghmError(
+            f"{subject_dir}: a data set of {data.num_identities} subjects ({names}{more}); "
+            "eval takes one subject folder"
+        )
     lpips = load_lpips()
     indices = [int(i) for i in data.images[0]]
     if images is not None:

@@ -28,6 +28,8 @@ from pghm.train.loop import (
     LoopConfig,
     LoopState,
     check_learning_rate,
+    check_step_memory,
+    check_trained,
     load_checkpoint,
     restore,
     run_stage,
@@ -129,11 +131,15 @@ def fit(
     data = TrainingData(subject_dir, pose_smoothing=config.pose_smoothing)
     if data.num_identities != 1:
         raise PghmError(f"{subject_dir}: fit takes one subject folder, found {data.num_identities}")
+    check_step_memory(data, config.stage1, "fit stage 1")
+    check_step_memory(data, config.stage2, "fit stage 2")
     if isinstance(prior, ModelConfig):
         torch.manual_seed(config.stage1.seed)
         model, prior_source = PGHM(prior, num_identities=0), "none (from scratch)"
     else:
         prior_avatar = prior if isinstance(prior, Avatar) else load_avatar(prior)
+        if prior_avatar.kind != "prior":
+            raise PghmError(f"{prior}: is a personalised avatar, not a prior (pghm train-prior); fit needs a prior")
         if data.body_name != prior_avatar.body_name:
             raise PghmError(f"the subject uses the '{data.body_name}' body, the prior '{prior_avatar.body_name}'")
         model = prior_avatar.model
@@ -191,6 +197,7 @@ def fit(
             "steps": {"stage1": state1.step, "stage2": state2.step},
             "seconds": round(state1.seconds + state2.seconds, 1),
             "skipped_steps": state1.skipped_steps + state2.skipped_steps,
+            "skipped_images": [list(b) for b in state2.bad_images],
             "lpips": lpips_line,
             "final": state2.history[-1] if state2.history else {},
             "config": config_record(config),
@@ -198,5 +205,7 @@ def fit(
     )
     for p in model.parameters():
         p.requires_grad_(True)
+    check_trained([state1, state2], out)
     save_avatar(out, avatar)
+    ckpt.unlink(missing_ok=True)  # the avatar holds the result; a stale checkpoint would only mislead --resume
     return avatar

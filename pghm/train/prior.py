@@ -27,6 +27,8 @@ from pghm.train.loop import (
     LoopConfig,
     LoopState,
     check_learning_rate,
+    check_step_memory,
+    check_trained,
     load_checkpoint,
     restore,
     run_stage,
@@ -119,6 +121,7 @@ def train_prior(
     distributed.init()
     out = Path(out)
     data = TrainingData(data_dir, max_identities=config.max_identities)
+    check_step_memory(data, config.loop, "train-prior")
     geometries = GeometryCache(data, config.model, config.body_model_path)
     torch.manual_seed(config.loop.seed)
     model = PGHM(config.model, num_identities=data.num_identities)
@@ -169,6 +172,8 @@ def train_prior(
             "processes": distributed.world_size(),
         },
     )
+    check_trained([state], out)
     if distributed.rank() == 0:
         save_avatar(out, avatar)
+        ckpt.unlink(missing_ok=True)  # the prior holds the result; a stale checkpoint would only mislead --resume
     return avatar

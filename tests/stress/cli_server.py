@@ -1,6 +1,7 @@
 """Runs ``pghm`` commands in forked child processes, for tests that need many real CLI runs.
 
-Reads one JSON request per line on stdin, ``{"argv": [...], "cwd": "..."}``, forks, and in
+Reads one JSON request per line on stdin, ``{"argv": [...], "cwd": "...", "env": {...}}``
+(``env``: variables set in the child, optional), forks, and in
 the child runs ``sys.exit(pghm.cli.main.main(argv))`` exactly as the ``pghm`` console script
 does, with stdout and stderr sent to files; writes one JSON reply per line,
 ``{"code": exit status, "stdout": ..., "stderr": ...}``. An exception escaping ``main`` prints
@@ -30,11 +31,12 @@ import pghm.train.fit  # noqa: E402,F401
 import pghm.train.prior  # noqa: E402,F401
 
 
-def run_child(argv: list[str], cwd: str, out: int, err: int) -> None:
+def run_child(argv: list[str], cwd: str, env: dict[str, str], out: int, err: int) -> None:
     """In the forked child: run the CLI and leave with its exit status (never returns)."""
     os.dup2(out, 1)
     os.dup2(err, 2)
     os.chdir(cwd)
+    os.environ.update(env)
     code = 1
     try:
         code = cli.main(argv)
@@ -55,7 +57,9 @@ def main() -> None:
         with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
             pid = os.fork()
             if pid == 0:
-                run_child(request["argv"], request.get("cwd", os.getcwd()), out.fileno(), err.fileno())
+                run_child(
+                    request["argv"], request.get("cwd", os.getcwd()), request.get("env", {}), out.fileno(), err.fileno()
+                )
             _, status = os.waitpid(pid, 0)
             replies = []
             for file in (out, err):

@@ -97,9 +97,9 @@ class _Server:
         )
         self.lock = threading.Lock()
 
-    def run(self, argv: list[str], cwd: Path) -> CliResult:
+    def run(self, argv: list[str], cwd: Path, env: dict[str, str]) -> CliResult:
         with self.lock:
-            self.process.stdin.write(json.dumps({"argv": argv, "cwd": str(cwd)}) + "\n")
+            self.process.stdin.write(json.dumps({"argv": argv, "cwd": str(cwd), "env": env}) + "\n")
             self.process.stdin.flush()
             line = self.process.stdout.readline()
         if not line:
@@ -116,13 +116,14 @@ class _Server:
 _server: _Server | None = None
 
 
-def cli(*argv: object, cwd: Path | None = None) -> CliResult:
-    """Run ``pghm ARGV`` in a child process; returns its exit status and output."""
+def cli(*argv: object, cwd: Path | None = None, env: dict[str, str] | None = None) -> CliResult:
+    """Run ``pghm ARGV`` in a child process (with ``env`` added to its environment); returns its
+    exit status and output."""
     global _server
     if _server is None:
         _server = _Server()
         atexit.register(_server.close)
-    return _server.run([str(a) for a in argv], cwd or ROOT)
+    return _server.run([str(a) for a in argv], cwd or ROOT, env or {})
 
 
 def one_error_line(result: CliResult) -> tuple[bool, str]:

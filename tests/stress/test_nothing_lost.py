@@ -80,11 +80,18 @@ class WriteSpy:
         monkeypatch.setattr(os, "fsync", spy_fsync)
         monkeypatch.setattr(os, "replace", spy_replace)
 
+    def _final(self, path: Path) -> Path:
+        """Where ``path`` ended up: a file renamed into a staged folder moves with the folder's rename."""
+        for source, destination, _ in self.renames:
+            if path != source and path.is_relative_to(source):
+                return destination / path.relative_to(source)
+        return path
+
     def _synced_before_rename(self, output: Path) -> bool:
         """Whether the file renamed to ``output`` was fsynced before that rename (else a crash
         right after the rename could leave an empty or partial file under the final name)."""
         return any(
-            destination.resolve() == output.resolve()
+            self._final(destination).resolve() == output.resolve()
             and source.resolve() in {p.resolve() for p in self.synced[:synced_before]}
             for source, destination, synced_before in self.renames
         )
@@ -96,7 +103,7 @@ class WriteSpy:
         inside = [p for p in self.opened if p.resolve().is_relative_to(root.resolve())]
         not_temporary = [p for p in inside if not (p.name.startswith(".") and ".tmp" in p.name)]
         missing = [o for o in outputs if not o.is_file()]
-        renamed = {destination.resolve() for _, destination, _ in self.renames}
+        renamed = {self._final(destination).resolve() for _, destination, _ in self.renames}
         unrenamed = [o for o in outputs if o.resolve() not in renamed]
         unsynced = [o for o in outputs if not self._synced_before_rename(o)]
         ok = not (direct or not_temporary or missing or unrenamed or unsynced)
@@ -187,7 +194,7 @@ def _writers(tmp: Path, tiny_dataset: Path) -> dict[str, tuple[callable, list[Pa
         "eval report and strip": (lambda: eval_report(tmp / "r.json", tmp / "r.png"), [tmp / "r.json", tmp / "r.png"]),
         "render: one PNG": (lambda: PngFileSink(tmp / "f.png").write(image), [tmp / "f.png"]),
         "render: PNG sequence": (
-            lambda: [PngSequenceSink(tmp / "seq").write(image)],
+            lambda: [sink := PngSequenceSink(tmp / "seq"), sink.write(image), sink.close()],
             [tmp / "seq" / "frame_00000.png"],
         ),
         "viewer screenshot": (lambda: save_png(tmp / "shot.png", image), [tmp / "shot.png"]),

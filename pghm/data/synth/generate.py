@@ -21,6 +21,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import queue
+import signal
 import sys
 import time
 from collections.abc import Iterator
@@ -42,6 +43,8 @@ from pghm.data.synth.poses import MOTION_KINDS, WALK_SPEED, add_pose_noise, moti
 from pghm.data.synth.regions import Landmarks
 from pghm.data.synth.render import Lighting, MeshRenderer, RenderedView
 from pghm.errors import PghmError
+from pghm.io.outputs import staged_folder
+from pghm.test_hook import interrupt_point
 
 GENERATOR_VERSION = "1.0"
 """Bumped whenever the same config and seed would give different bytes."""
@@ -354,6 +357,7 @@ runs) or with the worker process (pools live for one :func:`generate`)."""
 def _worker_init(progress: multiprocessing.Queue | None) -> None:
     """Initialise a spawned worker: one thread for torch and for llvmpipe (before any GL)."""
     os.environ["LP_NUM_THREADS"] = "1"
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle (it ends the pool)
     torch.set_num_threads(1)
     _WORKER["progress"] = progress
 
@@ -497,29 +501,30 @@ def generate(
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise PghmError(f"{out} already exists and is not empty; choose a new output folder")
     started = time.perf_counter()
-    out.mkdir(parents=True, exist_ok=True)
     total = config.identities * images_per_subject(config)
     workers = max(1, min(int(workers), config.identities * frames_per_subject(config)))
-    tasks = make_tasks(config, seed, out, workers)
-    with tqdm(total=total, desc="pghm synth", unit="img", disable=not progress, file=sys.stderr) as bar:
-        plans = _run_serially(tasks, bar) if workers == 1 else _run_in_pool(tasks, workers, bar)
-    by_index = {plan.index: plan for plan in plans}
-    versions = _versions()
-    for index in range(config.identities):
-        plan = by_index[index]
-        write_subject(out / plan.name, plan.arrays, _subject_meta(config, seed, plan, versions))
-    names = [by_index[i].name for i in range(config.identities)]
-    write_dataset_meta(
-        out,
-        names,
-        {
-            "source": "pghm synth",
-            "generator_version": GENERATOR_VERSION,
-            "seed": seed,
-            "config": config.to_json(),
-            "versions": versions,
-        },
-    )
+    with staged_folder(out) as building:  # an interrupted run leaves no half-made dataset
+        tasks = make_tasks(config, seed, building, workers)
+        with tqdm(total=total, desc="pghm synth", unit="img", disable=not progress, file=sys.stderr) as bar:
+            plans = _run_serially(tasks, bar) if workers == 1 else _run_in_pool(tasks, workers, bar)
+        interrupt_point("synth-subjects")
+        by_index = {plan.index: plan for plan in plans}
+        versions = _versions()
+        for index in range(config.identities):
+            plan = by_index[index]
+            write_subject(building / plan.name, plan.arrays, _subject_meta(config, seed, plan, versions))
+        names = [by_index[i].name for i in range(config.identities)]
+        write_dataset_meta(
+            building,
+            names,
+            {
+                "source": "pghm synth",
+                "generator_version": GENERATOR_VERSION,
+                "seed": seed,
+                "config": config.to_json(),
+                "versions": versions,
+            },
+        )
     return GenerationReport(out, names, total, time.perf_counter() - started, workers)
 
 
