@@ -21,8 +21,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-
 from common import DOCS, ROOT  # noqa: E402
+
 from pghm.capture.config import CaptureConfig  # noqa: E402
 from pghm.capture.pipeline import observe_video  # noqa: E402
 from pghm.capture.video import open_source  # noqa: E402

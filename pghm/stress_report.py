@@ -54,7 +54,7 @@ AREA_NOTES = {
         "**How the kill tests choose their moment.** A kill must land where the test says, on any "
         "machine at any load, not at a moment the test hopes to catch by polling (a fast idle "
         "machine finishes a small save between two polls). The atomic writer (`pghm/io/atomic.py`) "
-        "has a fault-injection point, off unless its environment variables are set: with "
+        "calls a fault-injection point (`pghm/test_hook.py`), off unless its environment variables are set: with "
         "`PGHM_TEST_PAUSE_SAVE=POINT:N:NAME` and `PGHM_TEST_PAUSE_MARKER=PATH`, the N-th save to a file "
         "named NAME that reaches POINT creates PATH and sleeps. The points are the three states a save "
         "can be interrupted in: `created` (empty temporary file), `written` (complete temporary file, "

@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from pghm.errors import AvatarFileError
-from pghm.io.torch_file import ZIP_MAGIC
 from pghm.io.avatar import Avatar, avatar_payload, load_avatar, recorded_path, save_avatar
+from pghm.io.torch_file import ZIP_MAGIC
 from pghm.model import PGHM, ModelConfig
 
 SMALL = ModelConfig(

@@ -11,6 +11,7 @@ from capture_videos import real_frames, truncated_video, write_video
 from pghm.cli.main import main
 from pghm.errors import EXIT_USER_ERROR
 
+
 def run_capture(tmp_path, capsys, input_path, *options) -> tuple[int, list[str]]:
     """Run ``pghm capture INPUT --out tmp/out``; the exit status and the lines printed on stderr."""
     code = main(["capture", str(input_path), "--out", str(tmp_path / "out" / "subject"), "--quiet", *options])
@@ -74,10 +75,14 @@ def test_one_frame_video(tmp_path, capsys):
 
 
 def test_existing_output_is_kept(tmp_path, capsys):
-    (tmp_path / "out" / "subject").mkdir(parents=True)
+    """A subject folder that holds anything is refused before the input is even read (pghm.io.outputs)."""
+    earlier = tmp_path / "out" / "subject" / "meta.json"
+    earlier.parent.mkdir(parents=True)
+    earlier.write_text("an earlier capture")
     code, lines = run_capture(tmp_path, capsys, tmp_path / "any.mp4")
-    assert code == EXIT_USER_ERROR and len(lines) == 1 and "already exists" in lines[0]
-    assert list((tmp_path / "out").iterdir()) == [tmp_path / "out" / "subject"]
+    assert code == EXIT_USER_ERROR and len(lines) == 1 and "not empty" in lines[0]
+    assert list((tmp_path / "out").iterdir()) == [earlier.parent] and list(earlier.parent.iterdir()) == [earlier]
+    assert earlier.read_text() == "an earlier capture"
 
 
 @pytest.mark.parametrize("options, fragment", [(["--every", "0"], "--every"), (["--fov", "200"], "--fov")])

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import pytest
-
 from pghm.cli.main import main
 from pghm.data.motion import Motion
 from pghm.data.procedural import procedural_motion

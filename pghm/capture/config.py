@@ -23,6 +23,12 @@ MIN_FRAMES = 8
 """Fewest frames with the person found that make a subject: with the default
 ``test_every`` of 8, seven training frames and one test frame."""
 
+MIN_SIZE = 16
+"""Smallest --size (pixels): below it MediaPipe finds no body."""
+FOV_RANGE_DEG = (1.0, 179.0)
+"""--fov bounds, degrees (a pinhole camera's field of view lies strictly between 0 and 180)."""
+MAX_FOCAL_PX = 1e6
+"""Largest --focal, pixels (a 1,000 mm lens on a 1 um-pixel sensor)."""
 DEFAULT_SIZE = 512
 """Longest side of the subject images, pixels (what ``pghm fit`` trains at on 2 cores)."""
 
@@ -78,14 +84,14 @@ class CaptureConfig:
             raise PghmError(f"--every must be >= 1, got {self.every}")
         if self.max_frames is not None and self.max_frames < 1:
             raise PghmError(f"--max-frames must be >= 1, got {self.max_frames}")
-        if self.size < 16:
-            raise PghmError(f"--size must be >= 16 pixels, got {self.size}")
+        if self.size < MIN_SIZE:
+            raise PghmError(f"--size must be >= {MIN_SIZE} pixels, got {self.size}")
         if self.fov_deg is not None and self.focal_px is not None:
             raise PghmError("give --fov or --focal, not both")
-        if self.fov_deg is not None and not 1.0 <= self.fov_deg <= 179.0:
-            raise PghmError(f"--fov must be in 1..179 degrees, got {self.fov_deg}")
-        if self.focal_px is not None and not (math.isfinite(self.focal_px) and self.focal_px > 0):
-            raise PghmError(f"--focal must be a positive number of pixels, got {self.focal_px}")
+        if self.fov_deg is not None and not FOV_RANGE_DEG[0] <= self.fov_deg <= FOV_RANGE_DEG[1]:
+            raise PghmError(f"--fov must be in {FOV_RANGE_DEG[0]:g}..{FOV_RANGE_DEG[1]:g} degrees, got {self.fov_deg}")
+        if self.focal_px is not None and not (math.isfinite(self.focal_px) and 0 < self.focal_px <= MAX_FOCAL_PX):
+            raise PghmError(f"--focal must be a number of pixels in (0, {MAX_FOCAL_PX:g}], got {self.focal_px}")
         if self.test_every < 2:
             raise PghmError(f"--test-every must be >= 2 (1 would leave no training frame), got {self.test_every}")
         if not 0.0 <= self.crop_margin <= 1.0:

@@ -347,9 +347,7 @@ class Track:
         return len(self.frame_index) + len(self.lost)
 
 
-def track_person(
-    frames: Iterable[tuple[int, np.ndarray]], on_frame: Callable[[], None] | None = None
-) -> Track:
+def track_person(frames: Iterable[tuple[int, np.ndarray]], on_frame: Callable[[], None] | None = None) -> Track:
     """Follow one person through ``frames`` ((source frame number, (H, W, 3) uint8) pairs of one size)."""
     indices, boxes, lost = [], [], []
     previous, frames_lost = None, 0

@@ -15,9 +15,7 @@ Ctrl-C leaves nothing behind.
 from __future__ import annotations
 
 import os
-import shutil
 import sys
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +36,7 @@ from pghm.capture.frontend import (
 from pghm.capture.video import ImageFolder, VideoFile, open_source, scaled_size
 from pghm.data.subject import SubjectArrays, write_image, write_subject
 from pghm.errors import PghmError
+from pghm.io.outputs import check_output, staged_folder
 
 TRACKING_SIZE = 512
 """Longest side of the frames the person is tracked on (pass 1), pixels."""
@@ -218,21 +217,13 @@ def capture(
     Frames where the person is not found are dropped with one warning (``on_warning``)
     listing them. Raises :class:`PghmError` (one line naming the file and frames) for an
     unreadable or truncated video, no person, fewer than ``config.min_frames`` usable
-    frames, or an existing ``out``; ``out`` is then not created.
+    frames, or an ``out`` that exists and is not an empty folder; ``out`` is then not created.
     """
     config = (config or CaptureConfig()).validate()
-    out = Path(out)
-    if out.exists():
-        raise PghmError(f"{out} already exists; choose a new output folder")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    folder = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
-    try:
+    out = check_output(out, inputs=[input], folder=True)
+    with staged_folder(out) as folder:
         front = observe_video(input, folder, config, on_warning)
         _write(folder, config, front)
-        os.rename(folder, out)
-    except BaseException:
-        shutil.rmtree(folder, ignore_errors=True)
-        raise
     return out
 
 

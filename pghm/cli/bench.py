@@ -18,7 +18,6 @@ from pathlib import Path
 
 from pghm.cli.options import MAX_IMAGE_SIDE, Integer, Real
 from pghm.errors import PghmError
-
 from pghm.io.outputs import check_output
 
 MAX_GAUSSIANS = 100_000_000

@@ -11,12 +11,22 @@ from __future__ import annotations
 
 import argparse
 
-from pghm.capture.config import DEFAULT_SIZE, DEFAULT_TEST_EVERY, CaptureConfig
+from pghm.capture.config import (
+    DEFAULT_SIZE,
+    DEFAULT_TEST_EVERY,
+    FOV_RANGE_DEG,
+    MAX_FOCAL_PX,
+    MIN_SIZE,
+    CaptureConfig,
+)
+from pghm.cli.options import MAX_IMAGE_SIDE, MAX_INDEX, Integer, Real
+from pghm.io.outputs import check_output
 
 
 def _capture(args: argparse.Namespace) -> int:
     from pghm.capture.pipeline import capture
 
+    check_output(args.out, inputs=[args.input], folder=True)
     config = CaptureConfig(
         every=args.every,
         max_frames=args.max_frames,
@@ -42,24 +52,32 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("input", help="a video file (mp4, mov, webm, avi, ...) or a folder of images")
     parser.add_argument("--out", required=True, help="the new subject folder to write")
-    parser.add_argument("--every", type=int, default=1, help="keep every N-th frame (default 1: all)")
-    parser.add_argument("--max-frames", type=int, default=None, help="stop after this many kept frames")
+    parser.add_argument("--every", type=Integer(1, MAX_INDEX), default=1, help="keep every N-th frame (default 1: all)")
     parser.add_argument(
-        "--size", type=int, default=DEFAULT_SIZE, help=f"longest side of the subject images (default {DEFAULT_SIZE})"
+        "--max-frames", type=Integer(1, MAX_INDEX), default=None, help="stop after this many kept frames"
+    )
+    parser.add_argument(
+        "--size",
+        type=Integer(MIN_SIZE, MAX_IMAGE_SIDE),
+        default=DEFAULT_SIZE,
+        help=f"longest side of the subject images (default {DEFAULT_SIZE})",
     )
     camera = parser.add_mutually_exclusive_group()
     camera.add_argument(
         "--fov",
-        type=float,
+        type=Real(*FOV_RANGE_DEG),
         default=None,
         help="field of view along the frame's longest side, degrees (default: the body fit estimates the focal)",
     )
     camera.add_argument(
-        "--focal", type=float, default=None, help="focal length in pixels of the full-resolution frames"
+        "--focal",
+        type=Real(0.0, MAX_FOCAL_PX, open_low=True),
+        default=None,
+        help="focal length in pixels of the full-resolution frames",
     )
     parser.add_argument(
         "--test-every",
-        type=int,
+        type=Integer(2, MAX_INDEX),
         default=DEFAULT_TEST_EVERY,
         help=f"every N-th kept frame goes to the test split (default {DEFAULT_TEST_EVERY})",
     )

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from pghm.body import BODY_NAMES, BodyModel, RestBody, load_body
-from pghm.data.bvh import load_bvh
 from pghm.cli.options import Integer, Real
+from pghm.data.bvh import load_bvh
 from pghm.data.motion import MAX_FPS, MIN_FPS, Motion
 from pghm.data.procedural import MAX_PROCEDURAL_FRAMES, PROCEDURAL_MOTIONS, procedural_motion
 from pghm.data.retarget import RIG_MAPS, UNIT_SCALES, clip_facing, detect_rig, import_bvh, leg_length, retarget_bvh

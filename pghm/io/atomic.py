@@ -12,18 +12,8 @@ makes an output private (``tempfile.mkstemp`` would create it 0o600).
 Every writer in pghm and the viewer goes through here: ``tests/stress/test_nothing_lost.py``
 checks each one and kills writers mid-save.
 
-**Test hook (fault injection), off unless set.** A kill test must kill a writer at a moment it
-chooses, not at one it hopes to catch by polling (a fast machine finishes a save between two
-polls). With ``PGHM_TEST_PAUSE_SAVE="POINT:N:NAME"`` and ``PGHM_TEST_PAUSE_MARKER=PATH`` in the
-environment, the N-th time (1-based, counted per process) this process reaches POINT for a
-destination whose file name is NAME, it creates PATH and then sleeps until it is killed. The
-points are the three states a save can be interrupted in:
-
-* ``created``: the temporary file exists, empty; the destination is untouched;
-* ``written``: the temporary file holds the whole new content, fsynced; not yet renamed;
-* ``renamed``: the new content is under the destination's name (the save is complete).
-
-Without the variables the hook is one dictionary look-up per save.
+A kill test chooses where a save is interrupted through :func:`pghm.test_hook.save_point`,
+called at the three states a save can be in: ``created``, ``written`` and ``renamed``.
 """
 
 from __future__ import annotations
@@ -33,37 +23,14 @@ import io
 import os
 import secrets
 import stat
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import BinaryIO, Literal
+from typing import BinaryIO
+
+from pghm.test_hook import save_point
 
 TEMPORARY_SUFFIX = ".tmp"
 """Temporary files are ``.<name>.<random>.tmp`` (plus ``suffix`` when one is asked for)."""
-
-PAUSE_VARIABLE = "PGHM_TEST_PAUSE_SAVE"
-"""Test hook: ``POINT:N:NAME``, pause at the N-th ``POINT`` of a save to a file named ``NAME``."""
-PAUSE_MARKER_VARIABLE = "PGHM_TEST_PAUSE_MARKER"
-"""Test hook: the file created once the writer has paused (the test's cue to kill it)."""
-SavePoint = Literal["created", "written", "renamed"]
-_points_reached: dict[tuple[str, str], int] = {}
-"""(point, file name) -> how many times this process has reached it (for the test hook)."""
-
-
-def _test_pause(point: SavePoint, path: Path) -> None:
-    """The fault-injection point described in the module docstring; returns at once unless asked to pause here."""
-    request = os.environ.get(PAUSE_VARIABLE)
-    if request is None:
-        return
-    key = (point, path.name)
-    _points_reached[key] = _points_reached.get(key, 0) + 1
-    wanted_point, wanted_count, wanted_name = request.split(":", 2)
-    if (wanted_point, int(wanted_count), wanted_name) != (point, _points_reached[key], path.name):
-        return
-    marker = os.open(os.environ[PAUSE_MARKER_VARIABLE], os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-    os.close(marker)
-    while True:  # until the test's SIGKILL
-        time.sleep(60)
 
 
 def _create_temporary(path: Path, suffix: str) -> tuple[int, Path]:
@@ -76,17 +43,17 @@ def _create_temporary(path: Path, suffix: str) -> tuple[int, Path]:
             continue
         with contextlib.suppress(FileNotFoundError):
             os.fchmod(fd, stat.S_IMODE(os.stat(path).st_mode))
-        _test_pause("created", path)
+        save_point("created", path)
         return fd, candidate
     raise FileExistsError(f"{path.parent}: could not create a temporary file for {path.name}")
 
 
 def _commit(temporary: Path, path: Path) -> None:
     """Rename ``temporary`` (complete and fsynced) over ``path`` and make the rename durable."""
-    _test_pause("written", path)
+    save_point("written", path)
     os.replace(temporary, path)
     _fsync_directory(path.parent)
-    _test_pause("renamed", path)
+    save_point("renamed", path)
 
 
 @contextlib.contextmanager

@@ -36,8 +36,8 @@ from pghm.model.geometry import SubjectGeometry
 from pghm.model.pghm import PGHM
 from pghm.splat import Camera, render
 from pghm.train import distributed
-from pghm.train.data import PoseCorrections, Sample, TrainingData
 from pghm.train.background import BACKGROUND_KINDS, BLACK, WHITE, composite_render, composite_target, draw_backgrounds
+from pghm.train.data import PoseCorrections, Sample, TrainingData
 from pghm.train.losses import LossWeights, objective, psnr, silhouette
 
 log = logging.getLogger(__name__)

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from capture_videos import write_video
 from conftest import SMALL_MODEL, TINY_MODEL
 from stress_kit import ROOT, check, cli, one_error_line
 
@@ -42,7 +43,7 @@ from viewer.demo import development_avatar
 BVH = (ROOT / "tests" / "data" / "two_bone.bvh").read_text()
 OUTPUT_DESTS = ("out", "report", "strip", "plot")
 """Option destinations that name an output."""
-FOLDER_OUTPUTS = {("synth", "out")}
+FOLDER_OUTPUTS = {("synth", "out"), ("capture", "out")}
 """(command, dest) of outputs that are new folders (render's folder form: test_ctrl_c_leaves_nothing)."""
 RESULT_FOLDERS = {("bench", "out")}
 """(command, dest) of folders that results are added to (they may exist and hold files)."""
@@ -72,7 +73,14 @@ def world(tmp_path_factory, tiny_dataset):
     )
     (root / "clip.bvh").write_text(BVH)
     subject = Path(shutil.copytree(tiny_dataset / "subject_000", root / "subject"))
-    return {"avatar": root / "avatar.pt", "motion": root / "motion.npz", "bvh": root / "clip.bvh", "subject": subject}
+    video = write_video(root / "video.mp4", np.full((2, 32, 32, 3), 128, np.uint8))  # refusals come before reading it
+    return {
+        "avatar": root / "avatar.pt",
+        "motion": root / "motion.npz",
+        "bvh": root / "clip.bvh",
+        "subject": subject,
+        "video": video,
+    }
 
 
 @pytest.fixture(scope="module")
@@ -100,19 +108,31 @@ def base_commands(world: dict, out: Path) -> dict[tuple[str, ...], list[str]]:
         ("motion", "info"): ["motion", "info", str(world["motion"])],
         ("motion", "preview"): ["motion", "preview", "walk", "--out", str(out / "p.png")],
         ("train-prior",): [
-            "train-prior", str(world["subject"].parent), "--out", str(out / "p.pt"), "--no-lpips", *TINY_RUN["train"]
+            "train-prior",
+            str(world["subject"].parent),
+            "--out",
+            str(out / "p.pt"),
+            "--no-lpips",
+            *TINY_RUN["train"],
         ],
         ("fit",): ["fit", s, "--prior", a, "--out", str(out / "a.pt"), "--no-lpips", *TINY_RUN["fit"]],
         ("eval",): ["eval", a, s, "--report", str(out / "r.json"), "--strip", str(out / "r.png")],
         ("export",): ["export", a, "--out", str(out / "x.ply")],
         ("bench",): [
-            "bench", "splat", "--out", str(out / "bench"), "--plot", str(out / "plot.png"), *TINY_RUN["bench"]
+            "bench",
+            "splat",
+            "--out",
+            str(out / "bench"),
+            "--plot",
+            str(out / "plot.png"),
+            *TINY_RUN["bench"],
         ],
         ("render",): ["render", a, "--out", str(out / "v.png"), "--backend", "cpu", "--size", "32x24"],
+        ("capture",): ["capture", str(world["video"]), "--out", str(out / "captured"), "--quiet"],
     }
 
 
-BASE = base_commands({"avatar": "A", "subject": Path("S/s"), "motion": "M", "bvh": "B"}, Path("O"))
+BASE = base_commands({"avatar": "A", "subject": Path("S/s"), "motion": "M", "bvh": "B", "video": "V"}, Path("O"))
 """The rows (for the coverage test; the real paths come from the fixture)."""
 
 # ------------------------------------------------------------------------------ running
@@ -212,9 +232,7 @@ def test_every_numeric_option_declares_a_range():
     )
 
 
-@pytest.mark.parametrize(
-    "path,action", NUMERIC, ids=[f"{'-'.join(p)}{a.option_strings[-1]}" for p, a in NUMERIC]
-)
+@pytest.mark.parametrize("path,action", NUMERIC, ids=[f"{'-'.join(p)}{a.option_strings[-1]}" for p, a in NUMERIC])
 def test_numeric_option_out_of_range(path, action, world, tmp_path):
     argv = base_commands(world, tmp_path)[path]
     option = action.option_strings[-1]

@@ -15,7 +15,7 @@
    and ``--resume`` finishes the run with the parameters an uninterrupted run reaches.
 
 Every kill lands at a point the test chooses, on any machine at any load: the writer's
-fault-injection hook (``PGHM_TEST_PAUSE_SAVE``, :mod:`pghm.io.atomic`) makes the child create
+fault-injection hook (``PGHM_TEST_PAUSE_SAVE``, :mod:`pghm.test_hook`) makes the child create
 a marker file and sleep at the chosen point of the chosen save, and the test kills it once
 the marker exists. Nothing here waits for a moment it hopes to catch.
 """
@@ -30,7 +30,7 @@ import os
 import signal
 import subprocess
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -286,6 +286,7 @@ IN_MEMORY = {"buffer", "member", "file"}
 ATOMIC_BY_CONSTRUCTION = {
     ("pghm/cli/motion.py", "motion.save"),  # Motion.save: atomic_write_bytes (checked above)
     ("pghm/render/sinks.py", "imageio_ffmpeg.write_frames"),  # into a PendingFile's temporary path
+    ("pghm/data/synth/video.py", "imageio_ffmpeg.write_frames"),  # into atomic_path's temporary path
 }
 
 
@@ -335,7 +336,7 @@ def test_no_other_write_calls_in_pghm_and_the_viewer():
 # ------------------------------------------------------------- 2. kill -9 during a save
 
 SAVE_POINTS = ("created", "written", "renamed")
-"""The states of a save a kill can interrupt (:mod:`pghm.io.atomic`'s test hook)."""
+"""The states of a save a kill can interrupt (:func:`pghm.test_hook.save_point`)."""
 VERSION_AFTER_KILL = {"created": 0, "written": 0, "renamed": 1}
 """The version a file holds when its save of version 1 over version 0 is killed at each point."""
 STALE_AFTER_KILL = {"created": 1, "written": 1, "renamed": 0}
@@ -354,7 +355,7 @@ class Kill:
 def _kill_at(command: list[str], point: str, count: int, name: str, marker: Path, **popen) -> Kill:
     """Run ``command`` with the save hook set to pause at the ``count``-th ``point`` of a save to a
     file named ``name``, and SIGKILL it once it has paused there."""
-    from pghm.io.atomic import PAUSE_MARKER_VARIABLE, PAUSE_VARIABLE
+    from pghm.test_hook import PAUSE_MARKER_VARIABLE, PAUSE_VARIABLE
 
     marker.unlink(missing_ok=True)
     env = dict(os.environ, **{PAUSE_VARIABLE: f"{point}:{count}:{name}", PAUSE_MARKER_VARIABLE: str(marker)})
@@ -496,13 +497,12 @@ def prior_run(tiny_dataset, tmp_path_factory):
 
 def test_kill_9_during_train_prior_then_resume(prior_run, tiny_dataset, tmp_path):
     from pghm.model import ModelConfig
-    from pghm.train.loop import LoopConfig
     from pghm.train.prior import PriorConfig, train_prior
 
     out, landed, events, resumed = prior_run
-    config = PriorConfig(
+    config = PriorConfig(  # what the command line above asks for, on the command's defaults
         model=ModelConfig(uv_resolution=64, latent_channels=8),
-        loop=LoopConfig(steps=PRIOR_STEPS, images_per_shard=2, checkpoint_every=0),
+        loop=replace(PriorConfig().loop, steps=PRIOR_STEPS, images_per_shard=2, checkpoint_every=0),
         lpips=False,
     )
     straight = train_prior(tiny_dataset, tmp_path / "straight.pt", config)
@@ -520,7 +520,6 @@ def test_kill_9_during_train_prior_then_resume(prior_run, tiny_dataset, tmp_path
 def test_kill_9_during_fit_then_resume(prior_run, tiny_dataset, tmp_path):
     from pghm.io.avatar import load_avatar
     from pghm.train.fit import FitConfig, fit
-    from pghm.train.loop import LoopConfig
 
     prior, _, _, _ = prior_run
     subject = tiny_dataset / "subject_000"
@@ -548,9 +547,10 @@ def test_kill_9_during_fit_then_resume(prior_run, tiny_dataset, tmp_path):
     resumed = subprocess.run(base + ["--resume"], capture_output=True, text=True, timeout=SAFETY_TIMEOUT)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     avatar = load_avatar(out)
+    defaults = FitConfig()  # what the command line above asks for, on the command's defaults
     config = FitConfig(
-        stage1=LoopConfig(steps=FIT_STAGES[0], images_per_shard=2, checkpoint_every=0),
-        stage2=LoopConfig(steps=FIT_STAGES[1], images_per_shard=2, checkpoint_every=0),
+        stage1=replace(defaults.stage1, steps=FIT_STAGES[0], images_per_shard=2, checkpoint_every=0),
+        stage2=replace(defaults.stage2, steps=FIT_STAGES[1], images_per_shard=2, checkpoint_every=0),
         lpips=False,
     )
     straight = fit(subject, prior, tmp_path / "straight.pt", config)

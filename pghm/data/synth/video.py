@@ -33,6 +33,7 @@ from pghm.data.synth.config import PRESETS, SynthConfig
 from pghm.data.synth.generate import plan_subject, release_worker_gl, render_views
 from pghm.data.synth.render import RenderedView
 from pghm.errors import PghmError
+from pghm.io.atomic import atomic_path
 
 VIDEO_CRF = 23
 """libx264's constant rate factor (its default): visible blocking at edges and in flat
@@ -118,23 +119,24 @@ def render_walk_video(
         raise PghmError(f"walk video: background must be ({config.height}, {config.width}, 3) uint8")
     plan = plan_subject(config, load_body("anny"), seed, SUBJECT_INDEX)
     masks = np.zeros((config.frames, config.height, config.width), dtype=bool)
-    writer = imageio_ffmpeg.write_frames(
-        str(out),
-        (config.width, config.height),
-        fps=config.fps,
-        codec="libx264",
-        pix_fmt_out="yuv420p",
-        quality=None,
-        macro_block_size=1,
-        output_params=["-crf", str(crf)],
-    )
-    writer.send(None)
-    try:
-        views = render_views(config, plan, list(range(config.frames)))
-        for i, view in tqdm(views, total=config.frames, desc="walk video", disable=not progress, file=sys.stderr):
-            masks[i] = view.mask > 0
-            writer.send(np.ascontiguousarray(composite(view, background)))
-    finally:
-        writer.close()
-        release_worker_gl()
+    with atomic_path(out, suffix=Path(out).suffix) as temporary:  # a killed render leaves no half video
+        writer = imageio_ffmpeg.write_frames(
+            str(temporary),
+            (config.width, config.height),
+            fps=config.fps,
+            codec="libx264",
+            pix_fmt_out="yuv420p",
+            quality=None,
+            macro_block_size=1,
+            output_params=["-crf", str(crf)],
+        )
+        writer.send(None)
+        try:
+            views = render_views(config, plan, list(range(config.frames)))
+            for i, view in tqdm(views, total=config.frames, desc="walk video", disable=not progress, file=sys.stderr):
+                masks[i] = view.mask > 0
+                writer.send(np.ascontiguousarray(composite(view, background)))
+        finally:
+            writer.close()
+            release_worker_gl()
     return WalkTruth(plan.arrays, masks, config.fps)
