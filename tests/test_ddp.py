@@ -10,6 +10,9 @@ import sys
 import torch
 
 from pghm.io.avatar import load_avatar
+from pghm.model import ModelConfig
+from pghm.train.data import TrainingData
+from pghm.train.prior import initial_model
 
 ARGS = [
     "--steps",
@@ -61,22 +64,12 @@ def test_two_processes_equal_one(tiny_dataset, tmp_path):
             *ARGS,
         ]
     )
-    initial = tmp_path / "initial.pt"
-    run(
-        [
-            sys.executable,
-            "-m",
-            "pghm.cli.main",
-            "train-prior",
-            str(tiny_dataset),
-            "--out",
-            str(initial),
-            *ARGS[:1],
-            "0",
-            *ARGS[2:],
-        ]
+    one, two = (load_avatar(p).model.state_dict() for p in (single, double))
+    model = ModelConfig(
+        uv_resolution=int(ARGS[ARGS.index("--uv-resolution") + 1]),
+        latent_channels=int(ARGS[ARGS.index("--latent-channels") + 1]),
     )
-    one, two, start = (load_avatar(p).model.state_dict() for p in (single, double, initial))
+    start = initial_model(model, TrainingData(tiny_dataset).num_identities, seed=0).state_dict()  # step 0 of both runs
     assert load_avatar(double).metadata["processes"] == 2 and load_avatar(single).metadata["processes"] == 1
     moved = 0
     for name in one:

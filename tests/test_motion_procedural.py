@@ -154,7 +154,7 @@ def test_registry_defaults_and_errors(body):
     assert procedural_motion("walk", body).num_frames == procedural.DEFAULT_FRAMES
     with pytest.raises(PghmError, match="unknown procedural motion 'dance'"):
         procedural_motion("dance", body)
-    with pytest.raises(PghmError, match="1 to 100000 frames"):
+    with pytest.raises(PghmError, match=f"1 to {procedural.MAX_PROCEDURAL_FRAMES} frames"):
         procedural_motion("walk", body, frames=0)
     with pytest.raises(PghmError, match="fps"):
         procedural_motion("walk", body, frames=4, fps=-1.0)

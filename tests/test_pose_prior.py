@@ -63,7 +63,8 @@ def test_negative_weights_are_refused_with_one_message(tmp_path, capsys):
         LossWeights(l1=math.nan)
     code = main(["fit", str(tmp_path), "--prior", "scratch", "--out", str(tmp_path / "a.pt"), "--pose-prior", "-1"])
     assert code == 2
-    assert "loss weights must be >= 0: pose_prior" in capsys.readouterr().err
+    (line,) = capsys.readouterr().err.splitlines()  # refused at the parser, before any file is read
+    assert "--pose-prior" in line and "[0, 100]" in line
 
 
 @pytest.mark.parametrize(

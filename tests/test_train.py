@@ -15,7 +15,7 @@ from pghm.model import ModelConfig
 from pghm.train.data import TrainingData
 from pghm.train.fit import FitConfig, fit, network_parameters
 from pghm.train.loop import LoopConfig
-from pghm.train.prior import PriorConfig, train_prior
+from pghm.train.prior import PriorConfig, initial_model, train_prior
 
 MODEL = ModelConfig(**TINY_MODEL)
 
@@ -30,13 +30,13 @@ def prior_config(steps: int, **loop) -> PriorConfig:
     )
 
 
-def fixed_loss(avatar, data: TrainingData) -> float:
-    """The objective on a fixed set of images (every training image of both identities)."""
+def fixed_loss(model, data: TrainingData) -> float:
+    """The objective of ``model`` (a PGHM) on a fixed set of images (every training image of both identities)."""
     from pghm.train.loop import AvatarObjective
     from pghm.train.prior import GeometryCache
 
-    geometries = GeometryCache(data, avatar.model.config, None)
-    objective = AvatarObjective(avatar.model, None, None, LoopConfig().loss, None)
+    geometries = GeometryCache(data, model.config, None)
+    objective = AvatarObjective(model, None, None, LoopConfig().loss, None)
     with torch.no_grad():
         losses = [
             objective(data.load_group(i, list(data.images[i])), geometries(i))[0].item()
@@ -55,9 +55,9 @@ def prior_file(tiny_dataset, tmp_path_factory):
 def test_two_identity_prior_loss_falls(tiny_dataset, tmp_path):
     data = TrainingData(tiny_dataset)
     assert data.num_identities == 2
-    untrained = train_prior(tiny_dataset, tmp_path / "p0.pt", prior_config(steps=0))
+    untrained = initial_model(MODEL, data.num_identities, prior_config(steps=15).loop.seed)
     trained = train_prior(tiny_dataset, tmp_path / "p1.pt", prior_config(steps=15))
-    before, after = fixed_loss(untrained, data), fixed_loss(trained, data)
+    before, after = fixed_loss(untrained, data), fixed_loss(trained.model, data)
     assert after < 0.9 * before, (before, after)
     assert trained.kind == "prior" and trained.shapes.shape == (2, 6)
     assert trained.metadata["steps"] == 15 and trained.metadata["lpips"].startswith("LPIPS off")

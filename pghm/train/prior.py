@@ -111,6 +111,13 @@ def lpips_for(enabled: bool):
     return network, lpips_status(directories=False)
 
 
+def initial_model(model: ModelConfig, num_identities: int, seed: int) -> PGHM:
+    """The prior's network and identity bank before its first step (what step 0 of
+    :func:`train_prior` starts from for ``PriorConfig(model=model, loop=LoopConfig(seed=seed))``)."""
+    torch.manual_seed(seed)
+    return PGHM(model, num_identities=num_identities)
+
+
 def train_prior(
     data_dir: str | Path, out: str | Path, config: PriorConfig | None = None, resume: bool = False
 ) -> Avatar:
@@ -123,8 +130,7 @@ def train_prior(
     data = TrainingData(data_dir, max_identities=config.max_identities)
     check_step_memory(data, config.loop, "train-prior")
     geometries = GeometryCache(data, config.model, config.body_model_path)
-    torch.manual_seed(config.loop.seed)
-    model = PGHM(config.model, num_identities=data.num_identities)
+    model = initial_model(config.model, data.num_identities, config.loop.seed)
     corrections = PoseCorrections.of_estimated_joints(data.num_frames, geometries.body) if config.refine_poses else None
     lpips, lpips_line = lpips_for(config.lpips)
     objective = AvatarObjective(model, None, corrections, config.loop.loss, lpips)
