@@ -16,7 +16,12 @@ ARGS = ["--uv-resolution", "64", "--latent-channels", "8", "--images", "2", "--n
 def test_sigint_saves_and_resume_continues(tiny_dataset, tmp_path):
     out = tmp_path / "prior.pt"
     command = [sys.executable, "-m", "pghm.cli.main", "train-prior", str(tiny_dataset), "--out", str(out), *ARGS]
-    process = subprocess.Popen([*command, "--steps", "100000"], stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(  # SIGINT as in a terminal, even when the suite itself was started with it ignored
+        [*command, "--steps", "100000"],
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     seen = ""
     while "psnr=" not in seen:  # a step has finished: the interrupt lands in the training loop
         character = process.stderr.read(1)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import sys
 import tempfile
 import traceback
@@ -37,6 +38,10 @@ def run_child(argv: list[str], cwd: str, env: dict[str, str], out: int, err: int
     os.dup2(err, 2)
     os.chdir(cwd)
     os.environ.update(env)
+    # As in a terminal, Ctrl-C raises KeyboardInterrupt: a suite started as a background job of a
+    # non-interactive shell inherits SIGINT ignored, which would make the Ctrl-C cases pass or
+    # fail by how the suite was launched.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     code = 1
     try:
         code = cli.main(argv)
