@@ -12,9 +12,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from pghm.cli.main import debug_requested, guarded
+from pghm.cli.main import run_command
 from pghm.cli.options import OneLineParser, Size
-from pghm.errors import EXIT_USER_ERROR, DisplayError, PghmError
+from pghm.errors import DisplayError, PghmError
 
 HEADLESS_HINT = "render without a window: pghm render AVATAR.pt --out out.mp4"
 DEFAULT_WINDOW = (1280, 800)
@@ -55,16 +55,7 @@ def _open_and_run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
-
-    def work() -> int:
-        try:
-            args = build_parser().parse_args(argv)
-        except SystemExit as stop:  # --help, or a bad option (its one line already printed)
-            return stop.code if isinstance(stop.code, int) else EXIT_USER_ERROR
-        return _open_and_run(args)
-
-    return guarded("pghm-view", work, debug_requested(argv))
+    return run_command("pghm-view", build_parser, _open_and_run, argv)
 
 
 if __name__ == "__main__":

@@ -48,6 +48,7 @@ from scipy.ndimage import distance_transform_edt
 from torch import Tensor
 
 from pghm.body import BodyModel, load_body
+from pghm.body.model import CANONICAL_JOINTS
 from pghm.body.skinning import forward_kinematics, kinematic_levels, lbs
 from pghm.capture.landmarks import BODY_LANDMARKS, LANDMARK_NAMES, NUM_LANDMARKS, landmark_regressor
 from pghm.errors import PghmError
@@ -55,25 +56,10 @@ from pghm.errors import PghmError
 if TYPE_CHECKING:
     from pghm.capture.frontend import Observations
 
-FITTED_JOINTS = (
-    "spine1",
-    "spine2",
-    "spine3",
-    "neck",
-    "head",
-    "left_collar",
-    "right_collar",
-    "left_shoulder",
-    "right_shoulder",
-    "left_elbow",
-    "right_elbow",
-    "left_hip",
-    "right_hip",
-    "left_knee",
-    "right_knee",
-    "left_ankle",
-    "right_ankle",
-)
+UNFITTED_JOINTS = ("pelvis", "left_wrist", "right_wrist", "left_foot", "right_foot")
+"""Canonical joints not fitted as bones: the pelvis is the root (its rotation is the root's); the
+wrist and foot joints turn the hands and toes, which the fit keeps at rest."""
+FITTED_JOINTS = tuple(name for name in CANONICAL_JOINTS if name not in UNFITTED_JOINTS)
 """Canonical joints whose rotation is fitted (besides the root); hands, toes, face and the
 limbs' twist bones stay at rest."""
 

@@ -20,6 +20,7 @@ import errno
 import importlib
 import os
 import sys
+from collections.abc import Callable
 
 from pghm.errors import EXIT_USER_ERROR, PghmError
 
@@ -99,17 +100,28 @@ def run(func, args: argparse.Namespace) -> int:
     return guarded("pghm", lambda: func(args), getattr(args, "debug", False))
 
 
-def main(argv: list[str] | None = None) -> int:
+def run_command(
+    tool: str,
+    build: Callable[[], argparse.ArgumentParser],
+    execute: Callable[[argparse.Namespace], int],
+    argv: list[str] | None,
+) -> int:
+    """Parse ``argv`` (default: the process's) with ``build()``'s parser and ``execute`` the result,
+    all under :func:`guarded`: the entry point of every command (``pghm``, ``pghm-view``)."""
     argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
 
     def work() -> int:
         try:
-            args = build_parser().parse_args(argv)
+            args = build().parse_args(argv)
         except SystemExit as stop:  # --help, or a bad option (its one line already printed)
             return stop.code if isinstance(stop.code, int) else EXIT_USER_ERROR
-        return args.func(args)
+        return execute(args)
 
-    return guarded("pghm", work, debug_requested(argv))
+    return guarded(tool, work, debug_requested(argv))
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_command("pghm", build_parser, lambda args: args.func(args), argv)
 
 
 if __name__ == "__main__":
