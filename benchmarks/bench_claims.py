@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 from common import DOCS, setup_threads
 
+from pghm.io.avatar import recorded_path
 from pghm.model import ModelConfig
 from pghm.train.evaluate import evaluate
 from pghm.train.fit import FitConfig, fit
@@ -286,8 +287,12 @@ def seed_table(seeds: dict, k: int) -> list[str]:
             f"| {seed} | {prior['novel_pose']['psnr']:.2f} | {prior['fit_seconds'] / 60:.1f} | "
             f"{rival['novel_pose']['psnr']:.2f} | {rival['fit_seconds'] / 60:.1f} | {margins[-1]:+.2f} |"
         )
-    lines += ["", f"Mean margin over {len(margins)} seeds: **{np.mean(margins):+.2f} dB** "
-              f"(from {min(margins):+.2f} to {max(margins):+.2f}).", ""]
+    lines += [
+        "",
+        f"Mean margin over {len(margins)} seeds: **{np.mean(margins):+.2f} dB** "
+        f"(from {min(margins):+.2f} to {max(margins):+.2f}).",
+        "",
+    ]
     return lines
 
 
@@ -335,7 +340,7 @@ def write_table(results: dict, args: argparse.Namespace, bent: list[int]) -> Non
         "# The paper's claims at CPU scale",
         "",
         "Produced by `python benchmarks/bench_claims.py "
-        f"--data {args.data} --subject {args.subject} --work {args.work}`",
+        f"--data {recorded_path(args.data)} --subject {recorded_path(args.subject)} --work {recorded_path(args.work)}`",
         "on 2 CPU threads. Data: `pghm synth --config prior --seed 0` (16 identities x 8 views x 30 frames, 256 px)",
         "and a held-out subject `pghm synth --config mono --seed 1` (100 monocular training frames at 512 x 384;",
         "metrics on its held-out novel-pose frames, whole images on white, rendered with the exact poses so that",

@@ -25,7 +25,7 @@ from common import DOCS, setup_threads
 from PIL import Image, ImageDraw
 
 from pghm.data.subject import Subject
-from pghm.io.avatar import Avatar, load_avatar
+from pghm.io.avatar import Avatar, load_avatar, recorded_path
 from pghm.train.evaluate import STRIP_FRAMES, evaluate
 
 TRAIN_STRIDE = 5
@@ -83,6 +83,12 @@ def avatar_row(label: str, avatar: Avatar, subject: Path) -> tuple[str, np.ndarr
     return row, np.asarray(labelled)
 
 
+def recorded_spec(spec: str) -> str:
+    """A ``LABEL=PATH`` option as the report names it: the path through :func:`recorded_path`."""
+    label, _, path = spec.partition("=")
+    return f"{label}={recorded_path(path)}"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--prior", action="append", required=True, help="LABEL=PATH of a prior, repeatable")
@@ -96,9 +102,9 @@ def main() -> None:
         "# What the priors learn, and what they hand on",
         "",
         "Produced by `python benchmarks/diagnose_prior.py "
-        + " ".join(f'--prior "{p}"' for p in args.prior)
-        + f" --data {args.data} --subject {args.subject} "
-        + " ".join(f'--avatar "{a}"' for a in args.avatar)
+        + " ".join(f'--prior "{recorded_spec(p)}"' for p in args.prior)
+        + f" --data {recorded_path(args.data)} --subject {recorded_path(args.subject)} "
+        + " ".join(f'--avatar "{recorded_spec(a)}"' for a in args.avatar)
         + "` (whole images on white, exact poses).",
         "",
         "## 1. Priors on their own training identities",
