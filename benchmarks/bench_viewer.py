@@ -277,14 +277,7 @@ def bench_window(avatar_path: Path, frames: int) -> list[dict]:
             viewer.frame()
 
         def measure(label: str, action) -> None:
-            times = []
-            for k in range(frames):
-                action(k)
-                start = time.perf_counter()
-                viewer.frame()
-                times.append((time.perf_counter() - start) * 1e3)
-            stats = summary(times)
-            rows.append({"situation": label, **stats, "load": load_average()})
+            rows.append({"situation": label, **summary(frame_times(viewer, frames, action)), "load": load_average()})
 
         measure("idle (scene cached, UI only)", lambda k: None)
         measure("orbit (view branch + sort + draw)", lambda k: viewer.orbit(3.0, 0.0))

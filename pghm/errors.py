@@ -14,6 +14,13 @@ EXIT_USER_ERROR = 2
 """Exit status of the CLIs when a :class:`PghmError` stops them."""
 
 
+def listed(values, shown: int) -> str:
+    """The first ``shown`` of ``values`` and how many more, for a one-line message ("3, 7 and 12 more")."""
+    values = list(values)
+    head = ", ".join(str(v) for v in values[:shown])
+    return head + (f" and {len(values) - shown} more" if len(values) > shown else "")
+
+
 class PghmError(ValueError):
     """A problem with the user's input, reported in one line."""
 

@@ -35,7 +35,7 @@ from pghm.capture.frontend import (
 )
 from pghm.capture.video import ImageFolder, VideoFile, open_source, scaled_size
 from pghm.data.subject import SubjectArrays, write_image, write_subject
-from pghm.errors import PghmError
+from pghm.errors import PghmError, listed
 from pghm.io.outputs import check_output, staged_folder
 
 TRACKING_SIZE = 512
@@ -48,11 +48,6 @@ SHOWN_FRAMES = 12
 """Frame numbers listed in a message before "and N more"."""
 
 WHITE = 255
-
-
-def _frame_list(frames: list[int]) -> str:
-    shown = ", ".join(str(f) for f in frames[:SHOWN_FRAMES])
-    return shown + (f" and {len(frames) - SHOWN_FRAMES} more" if len(frames) > SHOWN_FRAMES else "")
 
 
 def _warn(message: str) -> None:
@@ -76,7 +71,7 @@ def _require_frames(name: str, found: int, read: int, lost: list[int], config: C
     if found == 0:
         raise PghmError(f"{name}: no person found in any of the {read} frame(s) read")
     if found < config.min_frames:
-        where = f" (not found in frames {_frame_list(lost)})" if lost else ""
+        where = f" (not found in frames {listed(lost, SHOWN_FRAMES)})" if lost else ""
         raise PghmError(
             f"{name}: the person was found in {found} of {read} frame(s) read{where}; "
             f"capture needs at least {config.min_frames} (a longer video, or a smaller --every)"
@@ -201,7 +196,7 @@ def observe_video(
     if dropped:
         on_warning(
             f"{source.name}: person not found in {len(dropped)} of {track.frames_read} frames "
-            f"({_frame_list(dropped)}); those frames are dropped"
+            f"({listed(dropped, SHOWN_FRAMES)}); those frames are dropped"
         )
     return FrontEnd(observations, source.name, (source.width, source.height), track.frames_read, dropped, region)
 

@@ -35,7 +35,7 @@ import numpy as np
 from PIL import Image
 
 from pghm.data.motion import MAX_ROTATION, MAX_TRANSLATION
-from pghm.errors import DatasetError
+from pghm.errors import DatasetError, listed
 from pghm.io.atomic import atomic_write_bytes
 from pghm.io.read_errors import IMAGE_READ_ERRORS, NPZ_READ_ERRORS
 
@@ -585,11 +585,13 @@ def _load_npz_for_check(path: Path, required: tuple[str, ...], problems: list[Pr
     return None if wrong else arrays
 
 
+SHOWN_INDICES = 8
+"""Image indices a problem line names before "and N more"."""
+
+
 def _indices(mask: np.ndarray) -> str:
     """Compact list of the True positions of a (n,) bool array, for messages."""
-    where = np.flatnonzero(mask)
-    shown = ", ".join(str(i) for i in where[:8])
-    return shown + (f" and {len(where) - 8} more" if len(where) > 8 else "")
+    return listed(np.flatnonzero(mask).tolist(), SHOWN_INDICES)
 
 
 def _check_cameras(cameras: dict, poses: dict | None, problems: list[Problem]) -> None:
