@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 import pytest
-from capture_videos import real_frames, truncated_video, write_video
+from capture_videos import real_frames, require_mediapipe, truncated_video, write_video
 
 from pghm.cli.main import main
 from pghm.errors import EXIT_USER_ERROR
@@ -28,7 +28,7 @@ def assert_refused(tmp_path, code: int, lines: list[str], *fragments: str) -> No
 
 
 def mediapipe_required():
-    pytest.importorskip("mediapipe", reason="the capture extra (pip install 'pghm[capture]') is not installed")
+    require_mediapipe()
 
 
 def test_not_a_video(tmp_path, capsys):

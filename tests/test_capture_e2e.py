@@ -14,6 +14,7 @@ import json
 
 import numpy as np
 import pytest
+from capture_videos import require_mediapipe
 from PIL import Image
 
 from pghm.cli.main import main
@@ -43,7 +44,7 @@ MIN_KEPT = FRAMES - 2
 
 @pytest.fixture(scope="module")
 def captured(tmp_path_factory):
-    pytest.importorskip("mediapipe", reason="the capture extra (pip install 'pghm[capture]') is not installed")
+    require_mediapipe()
     work = tmp_path_factory.mktemp("capture_e2e")
     video, out = work / "walk.mp4", work / "subject"
     config = walk_config(FRAMES, WIDTH, HEIGHT, TEXTURE)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from capture_videos import real_frames, write_video
+from capture_videos import real_frames, require_mediapipe, require_real_video, write_video
 from PIL import Image
 
 from pghm.capture.config import CaptureConfig
@@ -114,12 +114,8 @@ or heel landmark can sit on the mask's edge)."""
 
 
 def test_real_video_first_frames(subject_folder):
-    pytest.importorskip("mediapipe", reason="the capture extra (pip install 'pghm[capture]') is not installed")
-    from capture_videos import REAL_VIDEO
-
-    if REAL_VIDEO is None:
-        pytest.skip("the real video shared/data/video/outdoor_dribble_40f.mp4 is not beside the repository")
-    front, warnings = observe(REAL_VIDEO, subject_folder, max_frames=8)
+    require_mediapipe()
+    front, warnings = observe(require_real_video(), subject_folder, max_frames=8)
     obs = front.observations
     assert warnings == []
     assert obs.frame_index.tolist() == list(range(8))
@@ -146,7 +142,7 @@ def test_real_video_first_frames(subject_folder):
 
 def test_two_people_the_tracked_one_is_followed(subject_folder):
     """The real person beside a half-size copy of themselves: every frame follows the large one."""
-    pytest.importorskip("mediapipe", reason="the capture extra (pip install 'pghm[capture]') is not installed")
+    require_mediapipe()
     frames = real_frames(8)
     count, height, width = frames.shape[:3]
     small = frames[:, ::2, ::2]
@@ -164,7 +160,7 @@ def test_two_people_the_tracked_one_is_followed(subject_folder):
 
 
 def test_frames_without_the_person_are_dropped_with_one_warning(subject_folder):
-    pytest.importorskip("mediapipe", reason="the capture extra (pip install 'pghm[capture]') is not installed")
+    require_mediapipe()
     frames = real_frames(10)
     frames[[3, 5]] = 128
     front, warnings = observe(write_video(subject_folder / "gaps.mp4", frames), subject_folder)

@@ -131,7 +131,7 @@ def test_image_folder_in_name_order_with_exif_orientation(tmp_path):
     Image.fromarray(np.rot90(upright, k=1).copy()).save(photos / "a.jpg", quality=95, exif=exif)
     source = open_source(photos)
     assert (source.width, source.height) == (64, 96)
-    (_, image), = read(source)
+    ((_, image),) = read(source)
     assert np.abs(interior(image).astype(int) - interior(upright)).max() <= COMPRESSION_TOLERANCE
 
 
