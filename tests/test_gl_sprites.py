@@ -60,13 +60,17 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray | None = None) -
     return w2c
 
 
-def reference_render(means, scales, colors, opacities, cam, background, with_depth: bool = False):
-    """(H, W, 3) rgb, (H, W) alpha [, (H, W) depth] by the spec in float64, all pairs."""
+def reference_render(means, scales, colors, opacities, cam, background, with_depth: bool = False, order_cam=None):
+    """(H, W, 3) rgb, (H, W) alpha [, (H, W) depth] by the spec in float64, all pairs.
+
+    ``order_cam``: composite in the depth order of this camera instead of ``cam``'s.
+    """
     means, scales, colors, opacities = (np.asarray(a, np.float64) for a in (means, scales, colors, opacities))
     w2c = np.asarray(cam.world_to_camera, np.float64)
     t = means @ w2c[:3, :3].T + w2c[:3, 3]
+    order_w2c = w2c if order_cam is None else np.asarray(order_cam.world_to_camera, np.float64)
     # Stable order by depth; a Gaussian at or behind the near plane is dropped.
-    order = np.argsort(t[:, 2], kind="stable")
+    order = np.argsort((means @ order_w2c[:3, :3].T + order_w2c[:3, 3])[:, 2], kind="stable")
     order = order[t[order, 2] > NEAR_PLANE]
     t, s, c, o = t[order], scales[order], colors[order], opacities[order]
     x, y, z = t.T
@@ -385,6 +389,74 @@ def test_sort_is_cached_per_depth_axis(renderer):
     shifted[2, 3] += 0.1
     renderer.render(PinholeCamera(**{**cam.__dict__, "world_to_camera": shifted}))
     assert renderer.timings.sorted
+
+
+def drawn(ctx, renderer, cam, background, **options) -> np.ndarray:
+    """(H, W, 3) of ``renderer.draw`` into a float target, row 0 at the top."""
+    texture = ctx.texture((cam.width, cam.height), 4, dtype="f4")
+    target = ctx.framebuffer(color_attachments=[texture])
+    try:
+        renderer.draw(cam, background=background, target=target, flip_y=False, **options)
+        return np.frombuffer(texture.read(), np.float32).reshape(cam.height, cam.width, 4)[..., :3].copy()
+    finally:
+        target.release()
+        texture.release()
+
+
+def test_a_stale_order_composites_in_that_views_order_and_is_replaced_by_the_exact_one(ctx, renderer):
+    """draw(order_camera=B) is the spec's image with the sprites in B's depth order (a view a
+    moving camera kept); the next draw without it sorts again and is the exact image."""
+    rng = np.random.default_rng(17)
+    scene = random_scene(rng, 300, np.zeros(3), np.array([0.4, 0.3, 0.4]), (0.03, 0.1), (0.3, 1.0))
+    cam = orbit_camera(rng)
+    side = PinholeCamera(**{**cam.__dict__, "world_to_camera": look_at(np.array([3.0, 0.2, 0.0]), np.zeros(3))})
+    background = (0.1, 0.2, 0.3)
+    exact = reference_render(*scene, cam, background)[0]
+    stale = reference_render(*scene, cam, background, order_cam=side)[0]
+    assert np.abs(stale - exact).max() > 0.1, "the scene overlaps: the order shows"
+    renderer.set_gaussians(*scene)
+    assert_close(drawn(ctx, renderer, cam, background, order_camera=side), stale)
+    assert renderer.timings.sorted
+    assert_close(drawn(ctx, renderer, cam, background), exact)
+    assert renderer.timings.sorted, "the view's own order replaced the stale one"
+
+
+def test_float_projection_on_request_is_the_float_renderers_image(ctx, renderer):
+    """draw(precision="float") on a double renderer is the float renderer's image, bit for bit."""
+    rng = np.random.default_rng(18)
+    scene = random_scene(rng, 200, np.zeros(3), np.array([1.0, 0.8, 0.5]), (0.02, 0.1))
+    cam = orbit_camera(rng)
+    assert renderer.precision == "double", "llvmpipe and GPUs of the last decade have OpenGL 4"
+    renderer.set_gaussians(*scene)
+    with SpriteRenderer(ctx, precision="float") as single:
+        single.set_gaussians(*scene)
+        np.testing.assert_array_equal(
+            drawn(ctx, renderer, cam, (1.0, 1.0, 1.0), precision="float"), drawn(ctx, single, cam, (1.0, 1.0, 1.0))
+        )
+    assert_close(drawn(ctx, renderer, cam, (1.0, 1.0, 1.0)), reference_render(*scene, cam, (1.0, 1.0, 1.0))[0])
+    with pytest.raises(PghmError, match="precision"):
+        drawn(ctx, renderer, cam, (1.0, 1.0, 1.0), precision="half")
+
+
+def test_new_colours_alone_keep_the_order(renderer):
+    """Colours that change with the view (same means, scales, opacities) need no new sort; the
+    image is the new colours' image; moved means sort again."""
+    rng = np.random.default_rng(19)
+    means, scales, colors, opacities = random_scene(rng, 120, np.zeros(3), np.array([0.5, 0.4, 0.4]), (0.03, 0.1))
+    cam = orbit_camera(rng)
+    renderer.set_gaussians(means, scales, colors, opacities)
+    renderer.render(cam)
+    recoloured = rng.uniform(0, 1, colors.shape).astype(np.float32)
+    renderer.set_gaussians(means, scales, recoloured, opacities)
+    image = renderer.render(cam, background=(0.5, 0.5, 0.5))
+    assert not renderer.timings.sorted
+    assert_close(image.rgb, reference_render(means, scales, recoloured, opacities, cam, (0.5, 0.5, 0.5))[0])
+    moved = means.copy()
+    moved[::2, 2] *= -1.0
+    renderer.set_gaussians(moved, scales, recoloured, opacities)
+    image = renderer.render(cam, background=(0.5, 0.5, 0.5))
+    assert renderer.timings.sorted
+    assert_close(image.rgb, reference_render(moved, scales, recoloured, opacities, cam, (0.5, 0.5, 0.5))[0])
 
 
 def test_growth_torch_input_and_validation(renderer):

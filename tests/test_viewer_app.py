@@ -226,14 +226,28 @@ def test_scrubbing_a_motion_moves_the_arms_not_the_legs(viewer, tmp_path):
     viewer.set_gaussian_set("dynamic")
 
 
-def test_after_a_scrub_settles_the_window_shows_the_exact_frame_the_timeline_names(viewer, tmp_path):
-    """Scrub the walk without waiting (the worker lags, frames are approximate), then settle:
-    the scene equals the CPU splatter's image of that frame's Gaussians, evaluated by an
-    independent driver for the viewer's camera (8-bit, within one level: the 2e-3 GL/CPU bar)."""
+def assert_exact_frame(viewer, shown: np.ndarray, frame: int) -> None:
+    """``shown`` is the CPU splatter's image of motion frame ``frame``'s Gaussians, evaluated by
+    an independent driver for the viewer's camera (8-bit, within one level: the 2e-3 GL/CPU bar),
+    drawn at full resolution."""
     from pghm.io.avatar import load_avatar
     from pghm.render import AvatarDriver, to_uint8
     from pghm.splat import render
 
+    driver = AvatarDriver(load_avatar(viewer.avatar_path))
+    camera = viewer.current_camera()
+    pose = viewer.scene.pose_state.motion.pose(frame)
+    arrays = driver.evaluate(driver.avatar.identity_map(), pose, camera.centre.numpy())
+    tensors = (torch.from_numpy(a) for a in (arrays.means, arrays.scales, arrays.colors, arrays.opacities))
+    truth = to_uint8(render(*tensors, camera, background=viewer.display.background).rgb.numpy())
+    assert shown.shape == truth.shape
+    assert np.abs(shown.astype(np.int16) - truth).max() <= 1
+    assert viewer.hud.internal_size == (camera.width, camera.height), "the settled frame is at full resolution"
+
+
+def test_after_a_scrub_settles_the_window_shows_the_exact_frame_the_timeline_names(viewer, tmp_path):
+    """Scrub the walk without waiting (the worker lags, frames are approximate), then settle:
+    the scene is the exact image of the frame the timeline names."""
     viewer.open_motion("walk")
     for frame in range(5, 40, 3):
         viewer.scrub_to(frame)
@@ -242,17 +256,28 @@ def test_after_a_scrub_settles_the_window_shows_the_exact_frame_the_timeline_nam
     viewer.frame()
     shown = scene_shot(viewer, tmp_path / "settled.png")
     assert viewer.scene.pose_state.frame == 38
-    driver = AvatarDriver(load_avatar(viewer.avatar_path))
-    camera = viewer.current_camera()
-    pose = viewer.scene.pose_state.motion.pose(38)
-    arrays = driver.evaluate(driver.avatar.identity_map(), pose, camera.centre.numpy())
-    tensors = (torch.from_numpy(a) for a in (arrays.means, arrays.scales, arrays.colors, arrays.opacities))
-    truth = to_uint8(render(*tensors, camera, background=viewer.display.background).rgb.numpy())
-    assert shown.shape == truth.shape
-    assert np.abs(shown.astype(np.int16) - truth).max() <= 1
-    assert viewer.hud.internal_size == (camera.width, camera.height), "the settled frame is at full resolution"
+    assert_exact_frame(viewer, shown, 38)
     viewer.reset_camera()
     viewer.open_motion("rest")
+
+
+def test_after_an_orbit_settles_the_window_shows_the_exact_image(viewer, tmp_path):
+    """Orbit in small steps, one frame each: the moving frames composite in the depth order of
+    an earlier view (and project in float, at reduced resolution); once settled the order is
+    the view's own and the scene is the exact image."""
+    viewer.open_motion("rest")
+    viewer.settle()
+    stale = 0
+    for _ in range(12):
+        viewer.orbit(6.0, 1.0)
+        viewer.frame()
+        assert viewer.status.moving
+        stale += viewer.status.order_view != viewer.camera.view()
+    assert stale > 0, "moving frames kept an earlier view's order"
+    shown = scene_shot(viewer, tmp_path / "orbited.png")
+    assert viewer.status.order_view == viewer.camera.view(), "settled: the view's own order"
+    assert_exact_frame(viewer, shown, 0)
+    viewer.reset_camera()
 
 
 def test_region_gain_on_the_latent_changes_the_head(viewer, tmp_path):

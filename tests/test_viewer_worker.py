@@ -20,7 +20,7 @@ from pghm.render import GaussianArrays
 from pghm.render.frame_cache import FrameCache, PackedFrame, frames_ahead
 from viewer.camera import OrbitView
 from viewer.dynamic_resolution import SCALE_STEP, ResolutionController, ResolutionSettings
-from viewer.pipeline import ScenePipeline
+from viewer.pipeline import ORDER_REFRESH_DEGREES, ScenePipeline
 from viewer.scene import Evaluated, SceneRequest
 from viewer.worker import LatestRequestWorker, Superseded
 
@@ -332,6 +332,35 @@ def test_a_moving_camera_asks_nothing_until_it_turns_far_and_the_still_view_is_e
     assert status.shown.exact and not status.moving
     expected = arrays_of(0, turned.centre(np.zeros(3)))
     assert np.array_equal(status.shown.arrays.colors, expected.colors), "the colour is the turned view's"
+
+
+def test_a_moving_camera_keeps_a_recent_depth_order_and_the_still_view_sorts_exactly(model_pipeline):
+    """While moving, the order view lags the drawn view by at most ORDER_REFRESH_DEGREES and is
+    then replaced by the newest view (not an older one); once still, it is the drawn view."""
+    model, pipeline = model_pipeline
+    model.ungated.set()
+    still = FakeSnapshot("pose", frames=1)
+    status = pipeline.update(still, 0, FRONT, np.zeros(3), 0.0)
+    assert status.order_view == FRONT
+    step = 3.0  # degrees of yaw per frame
+    views = [OrbitView(FRONT.target, step * k, 0.0, 3.0, 40.0) for k in range(1, 16)]
+    now, stale, refreshed = 1.0, 0, []
+    for view in views:
+        now += 0.01
+        status = pipeline.update(still, 0, view, np.zeros(3), now)
+        assert status.moving
+        assert status.order_view in (FRONT, *views[: views.index(view) + 1]), "an order of a view that was drawn"
+        assert view.degrees_to(status.order_view) <= ORDER_REFRESH_DEGREES + 1e-9
+        stale += status.order_view != view
+        if status.order_view == view:
+            refreshed.append(view)
+    assert stale > len(views) / 2, "most moving frames keep the last order"
+    assert refreshed, "a turn past the refresh angle takes the newest view's order"
+    assert all(b.degrees_to(a) > ORDER_REFRESH_DEGREES for a, b in zip([FRONT, *refreshed], refreshed))
+    status = pipeline.update(still, 0, views[-1], np.zeros(3), now + 0.01)
+    assert status.moving and status.order_view != views[-1], "a view that just stopped is still moving"
+    status = pipeline.update(still, 0, views[-1], np.zeros(3), now + 2 * SETTLE)
+    assert not status.moving and status.order_view == views[-1], "the still view composites in its own order"
 
 
 def test_playing_a_clip_after_one_pass_draws_cached_frames_only(model_pipeline):

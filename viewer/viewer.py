@@ -68,6 +68,8 @@ class _Cache:
     mesh_topology_sent: bool = False
     set_gaussians_ms: float = 0.0
     """Time of the last ``set_gaussians`` not yet counted in the HUD's upload."""
+    offset_key: tuple | None = None
+    offset: np.ndarray | None = None
 
 
 class Viewer:
@@ -214,7 +216,7 @@ class Viewer:
         viewport = self.scene_viewport()
         snapshot = self._snapshot()
         state = self.scene.pose_state
-        offset = snapshot.camera_offset(state.frame)
+        offset = self._camera_offset(snapshot, state.frame)
         self.camera.offset = offset
         camera = self.camera.camera(viewport[2], viewport[3])
         block = self.synchronous or (recording is not None and recording.source == "motion")
@@ -285,8 +287,16 @@ class Viewer:
             self.error = pipeline.error
 
     def _scene_camera(self, viewport: tuple[int, int, int, int]):
-        self.camera.offset = self._snapshot().camera_offset(self.scene.pose_state.frame)
+        self.camera.offset = self._camera_offset(self._snapshot(), self.scene.pose_state.frame)
         return self.camera.camera(viewport[2], viewport[3])
+
+    def _camera_offset(self, snapshot, frame: int) -> np.ndarray:
+        """:meth:`SceneSnapshot.camera_offset`, computed once per (state, frame): the body's
+        forward kinematics would otherwise run on the UI thread in every frame."""
+        key = (snapshot.key, frame)
+        if key != self._cache.offset_key:
+            self._cache.offset_key, self._cache.offset = key, snapshot.camera_offset(frame)
+        return self._cache.offset
 
     def _snapshot(self):
         display = self.display
@@ -333,13 +343,26 @@ class Viewer:
         hud.internal_size = (width, height)
         if status.shown.arrays is not None:
             w2c = camera.world_to_camera.double().numpy().tobytes()
+            # Moving: the float projection and the order view's depth order (viewer.pipeline);
+            # still: the renderer's precision and the view's own order, the exact image.
+            precision = self.resolution.settings.moving_precision if status.moving else None
+            order_view = status.order_view if status.order_view != self.camera.view() else None
             scene_key = (self._cache.upload_key, w2c, viewport[2:], display.background, (width, height))
+            scene_key += (precision, order_view)
             hud.scene_redrawn = scene_key != self._cache.scene_key
             if hud.scene_redrawn:
                 target = self.scene_cache.target((viewport[2], viewport[3]))
                 internal = self.camera.camera(width, height) if (width, height) != viewport[2:] else camera
+                order_camera = order_view.camera(self.camera.offset, width, height) if order_view else None
                 full = (0, 0, *viewport[2:])
-                timings = self.renderer.draw(internal, display.background, target=target, viewport=full)
+                timings = self.renderer.draw(
+                    internal,
+                    display.background,
+                    target=target,
+                    viewport=full,
+                    precision=precision,
+                    order_camera=order_camera,
+                )
                 hud.sort_ms, hud.draw_ms = timings.sort_ms, timings.draw_ms
                 hud.upload_ms = self._cache.set_gaussians_ms + timings.upload_ms
                 self._cache.set_gaussians_ms = 0.0

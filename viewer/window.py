@@ -98,6 +98,7 @@ class Window:
         address = ctypes.cast(self.handle, ctypes.c_void_p).value
         imgui.backends.glfw_init_for_opengl(address, True)
         imgui.backends.opengl3_init(GLSL_VERSION)
+        self._size = self._query_size()
 
     # -------------------------------------------------------------------- per frame
 
@@ -115,7 +116,8 @@ class Window:
             self._glfw.poll_events()
 
     def begin_ui(self) -> None:
-        """Start an imgui frame (after :meth:`poll`)."""
+        """Start an imgui frame (after :meth:`poll`); reads the framebuffer size for the frame."""
+        self._size = self._query_size()
         self._imgui.backends.opengl3_new_frame()
         self._imgui.backends.glfw_new_frame()
         self._imgui.new_frame()
@@ -132,7 +134,11 @@ class Window:
         self._glfw.swap_buffers(self.handle)
 
     def framebuffer_size(self) -> tuple[int, int]:
-        """(W, H) of the drawable in pixels."""
+        """(W, H) of the drawable in pixels, as of this frame's :meth:`begin_ui` (a resize is an event)."""
+        return self._size
+
+    def _query_size(self) -> tuple[int, int]:
+        # A round trip to the X server (~0.4 ms under load): once per frame, not per caller.
         width, height = self._glfw.get_framebuffer_size(self.handle)
         return int(width), int(height)
 

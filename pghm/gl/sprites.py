@@ -142,6 +142,39 @@ class SpriteImage:
     depth: np.ndarray | None
 
 
+@dataclass(frozen=True)
+class _SpritePrograms:
+    """The sprite programs of one projection precision: quads, and points unless quads are forced."""
+
+    quads: moderngl.Program
+    quads_vao: moderngl.VertexArray
+    points: moderngl.Program | None
+    points_vao: moderngl.VertexArray | None
+
+    @staticmethod
+    def build(ctx: moderngl.Context, precision: str, primitive: str) -> _SpritePrograms:
+        quads = build_program(ctx, "gaussian_sprite.vert", "gaussian_sprite.frag", precision)
+        points = (
+            build_program(ctx, "gaussian_sprite.vert", "gaussian_sprite.frag", precision, {"PGHM_POINTS": 1})
+            if primitive == "auto"
+            else None
+        )
+        for program in (quads, points):
+            if program is not None:
+                program["mean_scale"] = 0
+                program["color_opacity"] = 1
+                program["draw_order"] = 2
+        # Both programs make their vertices from gl_VertexID / gl_InstanceID: no buffers.
+        return _SpritePrograms(
+            quads, ctx.vertex_array(quads, []), points, ctx.vertex_array(points, []) if points is not None else None
+        )
+
+    def release(self) -> None:
+        for resource in (self.quads_vao, self.points_vao, self.quads, self.points):
+            if resource is not None:
+                resource.release()
+
+
 class SpriteRenderer:
     """Draws N isotropic Gaussians into a float target with OpenGL 3.3.
 
@@ -180,31 +213,15 @@ class SpriteRenderer:
         self.timings = FrameTimings()
         if precision == "auto":
             precision = "double" if supports_fp64(ctx) else "float"
-        elif precision == "double" and not supports_fp64(ctx):
-            version = ctx.info["GL_VERSION"]
-            raise PghmError(
-                f"precision='double' needs OpenGL 4.0 or GL_ARB_gpu_shader_fp64; this context has {version}"
-            )
+        _require_precision(ctx, precision)
         self.precision = precision
         """"float" or "double": the projection the sprite program uses."""
-        self._sprites = build_program(ctx, "gaussian_sprite.vert", "gaussian_sprite.frag", precision)
-        self._points = (
-            build_program(ctx, "gaussian_sprite.vert", "gaussian_sprite.frag", precision, {"PGHM_POINTS": 1})
-            if primitive == "auto"
-            else None
-        )
-        for program in (self._sprites, self._points):
-            if program is not None:
-                program["mean_scale"] = 0
-                program["color_opacity"] = 1
-                program["draw_order"] = 2
+        self._primitive = primitive
+        self._passes: dict[str, _SpritePrograms] = {precision: _SpritePrograms.build(ctx, precision, primitive)}
         self._largest_point = float(ctx.info["GL_POINT_SIZE_RANGE"][1])
         self._largest_viewport = tuple(int(v) for v in ctx.info["GL_MAX_VIEWPORT_DIMS"])
         self._composite = build_program(ctx, "fullscreen.vert", "composite.frag")
         self._composite["accum"] = 0
-        # Both programs make their vertices from gl_VertexID / gl_InstanceID: no buffers.
-        self._sprites_vao = ctx.vertex_array(self._sprites, [])
-        self._points_vao = ctx.vertex_array(self._points, []) if self._points is not None else None
         self._composite_vao = ctx.vertex_array(self._composite, [])
         self._sorter = BitonicSorter(ctx) if sort == "gpu" else None
 
@@ -253,6 +270,14 @@ class SpriteRenderer:
         opacities = as_array("opacities", opacities, (count,))
         if count > MAX_GAUSSIANS:
             raise PghmError(f"at most {MAX_GAUSSIANS} Gaussians are supported, got {count}")
+        # Colours alone (e.g. view-dependent colour for a new view) keep the depth order and the
+        # sprites' extent: both depend only on the means, scales and opacities.
+        same_geometry = (
+            count == self._count
+            and np.array_equal(self._mean_scale_staging[:count, :3], means)
+            and np.array_equal(self._mean_scale_staging[:count, 3], scales)
+            and np.array_equal(self._color_opacity_staging[:count, 3], opacities)
+        )
         self._reserve(texture_rows(count))
         self._mean_scale_staging[:count, :3] = means
         self._mean_scale_staging[:count, 3] = scales
@@ -260,7 +285,8 @@ class SpriteRenderer:
         self._color_opacity_staging[:count, 3] = opacities
         self._count = count
         self._dirty = True
-        self._version += 1
+        if not same_geometry:
+            self._version += 1
 
     def render(
         self, camera: CameraLike, background: tuple[float, float, float] = (1.0, 1.0, 1.0), depth: bool = False
@@ -273,7 +299,7 @@ class SpriteRenderer:
         """
         cam = _Pinhole.of(camera)
         size = (cam.width, cam.height)
-        timings, box = self._accumulate(cam, depth, clear_margin=0)
+        timings, box = self._accumulate(cam, depth, clear_margin=0, precision=self.precision, order_cam=cam)
         image_fbo = self._image_target(size)
         start = time.perf_counter()
         image = np.empty((cam.height, cam.width, 4), np.float32)
@@ -300,6 +326,8 @@ class SpriteRenderer:
         target: moderngl.Framebuffer | None = None,
         viewport: tuple[int, int, int, int] | None = None,
         flip_y: bool = True,
+        precision: Literal["float", "double"] | None = None,
+        order_camera: CameraLike | None = None,
     ) -> FrameTimings:
         """Draw the Gaussians over ``background`` into ``target``, for presentation.
 
@@ -309,15 +337,24 @@ class SpriteRenderer:
         bilinearly if the sizes differ: rendering at a fraction of the window size is
         how the viewer trades resolution for frame rate. ``flip_y`` shows image row 0 at
         the top of a window. Leaves ``target`` bound, BLEND and the scissor disabled.
+
+        Two more trades for frames of a moving camera (defaults: the exact image):
+        ``precision`` "float" projects in float32 even on a double-precision renderer
+        (cheaper per Gaussian; rare cut-off flips, see the class), and ``order_camera``
+        composites in the depth order of another camera, e.g. the view of a few degrees
+        ago, whose order is cached (isotropic sprites: only overlapping ones swap).
         """
         target = target if target is not None else self.ctx.fbo
         cam = _Pinhole.of(camera)
+        order_cam = _Pinhole.of(order_camera) if order_camera is not None else cam
         viewport = viewport if viewport is not None else (0, 0, *target.size)
         scale = (viewport[2] / cam.width, viewport[3] / cam.height)
         # A window pixel inside the composite box samples within 0.5 / scale + 1 texels of
         # the sprite box: clear that far so bilinear taps never read a stale texel.
         margin = 2 + math.ceil(0.5 / min(scale))
-        timings, box = self._accumulate(cam, depth=False, clear_margin=margin)
+        timings, box = self._accumulate(
+            cam, depth=False, clear_margin=margin, precision=precision or self.precision, order_cam=order_cam
+        )
         start = time.perf_counter()
         target.use()
         target.clear(*background, 1.0, viewport=viewport)
@@ -335,10 +372,10 @@ class SpriteRenderer:
         self._release_gaussian_textures()
         if self._sorter is not None:
             self._sorter.release()
-        programs = (self._sprites, self._points, self._composite)
-        for resource in (self._sprites_vao, self._points_vao, self._composite_vao, *programs):
-            if resource is not None:
-                resource.release()
+        for programs in self._passes.values():
+            programs.release()
+        self._composite_vao.release()
+        self._composite.release()
 
     def __enter__(self) -> SpriteRenderer:
         return self
@@ -348,11 +385,15 @@ class SpriteRenderer:
 
     # ----------------------------------------------------------------- per frame
 
-    def _accumulate(self, cam: _Pinhole, depth: bool, clear_margin: int) -> tuple[FrameTimings, Box | None]:
+    def _accumulate(
+        self, cam: _Pinhole, depth: bool, clear_margin: int, precision: str, order_cam: _Pinhole
+    ) -> tuple[FrameTimings, Box | None]:
         """Upload and sort if needed, then blend the sprites into the float target.
 
-        Returns the stage timings and the box holding every sprite (None: nothing drawn);
-        only the box grown by ``clear_margin`` pixels is cleared.
+        The sprites are projected in ``precision`` and composited in the depth order of
+        ``order_cam`` (``cam`` for the exact image). Returns the stage timings and the box
+        holding every sprite (None: nothing drawn); only the box grown by ``clear_margin``
+        pixels is cleared.
         """
         timings = FrameTimings()
         size = (cam.width, cam.height)
@@ -372,16 +413,16 @@ class SpriteRenderer:
         box = extent.box if extent is not None else None
         timings.sort_ms = _ms_since(start)
         # The order depends only on the depth axis: the third row of world_to_camera.
-        order_key = (self._version, cam.world_to_camera[2].tobytes())
+        order_key = (self._version, order_cam.world_to_camera[2].tobytes())
         if box is not None and order_key != self._order_key:
-            self._sort(cam, timings)
+            self._sort(order_cam, timings)
             self._order_key = order_key
 
         start = time.perf_counter()
         if box is not None:
             fbo.use()
             fbo.clear(0.0, 0.0, 0.0, 0.0, viewport=grow(box, clear_margin, size))
-            primitive, program, vao, guard = self._sprite_pass(extent, size)
+            primitive, program, vao, guard = self._sprite_pass(extent, size, precision)
             self.ctx.viewport = (-guard, -guard, cam.width + 2 * guard, cam.height + 2 * guard)
             self.ctx.scissor = box
             self.ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
@@ -392,7 +433,7 @@ class SpriteRenderer:
             self._color_opacity.use(1)
             self._order.use(2)
             # GLSL matrices are column-major: write the transpose.
-            uniform_dtype = np.float64 if self.precision == "double" else np.float32
+            uniform_dtype = np.float64 if precision == "double" else np.float32
             program["world_to_camera"].write(cam.world_to_camera.T.astype(uniform_dtype).tobytes())
             program["focal"].write(np.array([cam.fx, cam.fy], uniform_dtype).tobytes())
             program["principal"].write(np.array([cam.cx, cam.cy], uniform_dtype).tobytes())
@@ -411,21 +452,25 @@ class SpriteRenderer:
         return timings, box
 
     def _sprite_pass(
-        self, extent: Extent, size: tuple[int, int]
+        self, extent: Extent, size: tuple[int, int], precision: str
     ) -> tuple[str, moderngl.Program, moderngl.VertexArray, int]:
         """Primitive ("points" or "quads"), program, vertex array and viewport guard (pixels)
-        of this frame's sprite pass.
+        of this frame's sprite pass in ``precision`` (its programs built on first use).
 
         Points when the renderer may use them, every square fits the driver's largest point
         size and the guarded viewport fits its largest viewport; quads otherwise (no guard).
         """
-        if self._points is not None:
+        if precision not in self._passes:
+            _require_precision(self.ctx, precision)
+            self._passes[precision] = _SpritePrograms.build(self.ctx, precision, self._primitive)
+        programs = self._passes[precision]
+        if programs.points is not None:
             guard = math.ceil(extent.largest_point_half) + 1
             fits_point = 2.0 * extent.largest_point_half <= self._largest_point
             fits_viewport = all(n + 2 * guard <= limit for n, limit in zip(size, self._largest_viewport))
             if fits_point and fits_viewport:
-                return "points", self._points, self._points_vao, guard
-        return "quads", self._sprites, self._sprites_vao, 0
+                return "points", programs.points, programs.points_vao, guard
+        return "quads", programs.quads, programs.quads_vao, 0
 
     def _bounds(self, cam: _Pinhole) -> Extent | None:
         """The sprites' extent, recomputed when the camera or the Gaussians change."""
@@ -540,6 +585,15 @@ FP64_VERSION = 400
 def supports_fp64(ctx: moderngl.Context) -> bool:
     """Whether ``ctx`` runs double-precision shaders (OpenGL >= 4.0 or GL_ARB_gpu_shader_fp64)."""
     return ctx.version_code >= FP64_VERSION or "GL_ARB_gpu_shader_fp64" in ctx.extensions
+
+
+def _require_precision(ctx: moderngl.Context, precision: str) -> None:
+    """Raise PghmError unless ``ctx`` runs sprite programs in ``precision`` ("float" or "double")."""
+    if precision not in ("float", "double"):
+        raise PghmError(f"precision must be 'float' or 'double', got {precision!r}")
+    if precision == "double" and not supports_fp64(ctx):
+        version = ctx.info["GL_VERSION"]
+        raise PghmError(f"precision='double' needs OpenGL 4.0 or GL_ARB_gpu_shader_fp64; this context has {version}")
 
 
 def _map_box(box: Box, size: tuple[int, int], viewport: tuple[int, int, int, int], flip_y: bool) -> Box:
