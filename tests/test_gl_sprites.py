@@ -403,6 +403,38 @@ def drawn(ctx, renderer, cam, background, **options) -> np.ndarray:
         texture.release()
 
 
+def test_present_shows_the_last_draw_again(ctx, renderer):
+    """present() composites the last draw's sprites into a viewport of the same size, anywhere,
+    bit for bit the draw's pixels; not another size, not after render()."""
+    rng = np.random.default_rng(20)
+    scene = random_scene(rng, 150, np.zeros(3), np.array([1.0, 0.8, 0.5]), (0.02, 0.1))
+    cam = orbit_camera(rng)
+    small = PinholeCamera(**{**cam.__dict__, "width": cam.width // 2, "height": cam.height // 2})
+    renderer.set_gaussians(*scene)
+    size = (2 * cam.width + 5, cam.height)
+    texture = ctx.texture(size, 4, dtype="f4")
+    target = ctx.framebuffer(color_attachments=[texture])
+    left, right = (0, 0, cam.width, cam.height), (cam.width + 5, 0, cam.width, cam.height)
+    try:
+        renderer.draw(small, background=(0.3, 0.6, 0.9), target=target, viewport=left)  # stretched
+        renderer.present((0.3, 0.6, 0.9), target=target, viewport=right)
+        image = np.frombuffer(texture.read(), np.float32).reshape(cam.height, size[0], 4)
+        np.testing.assert_array_equal(image[:, : cam.width], image[:, cam.width + 5 :])
+        target.clear(0.3, 0.6, 0.9, 1.0)  # the whole target: the viewport holds the background
+        renderer.present((0.3, 0.6, 0.9), target=target, viewport=right, cleared=True)
+        again = np.frombuffer(texture.read(), np.float32).reshape(cam.height, size[0], 4)
+        np.testing.assert_array_equal(again[:, cam.width + 5 :], image[:, : cam.width])
+        assert np.abs(image[:, : cam.width, :3] - np.float32([0.3, 0.6, 0.9])).max() > 0.1, "sprites drawn"
+        with pytest.raises(PghmError, match="viewport size"):
+            renderer.present((0.3, 0.6, 0.9), target=target, viewport=(0, 0, cam.width - 1, cam.height))
+        renderer.render(cam)
+        with pytest.raises(PghmError, match="nothing was drawn"):
+            renderer.present((0.3, 0.6, 0.9), target=target, viewport=left)
+    finally:
+        target.release()
+        texture.release()
+
+
 def test_a_stale_order_composites_in_that_views_order_and_is_replaced_by_the_exact_one(ctx, renderer):
     """draw(order_camera=B) is the spec's image with the sprites in B's depth order (a view a
     moving camera kept); the next draw without it sorts again and is the exact image."""

@@ -1,10 +1,7 @@
-"""GL drawing the viewer adds around the sprites: overlays (points, mesh lines) and the scene cache.
+"""GL drawing the viewer adds over the sprites: overlays (points, mesh lines).
 
-* :class:`OverlayRenderer` draws the Gaussian centres as points and the posed body mesh as
-  lines, projected exactly like the sprites (``shaders/viewer_overlay.vert.glsl``).
-* :class:`SceneCache` keeps the last scene image in a texture: a frame whose camera,
-  Gaussians and display settings did not change (only the UI did) copies it instead of
-  drawing every sprite again (``shaders/viewer_blit.frag.glsl``).
+:class:`OverlayRenderer` draws the Gaussian centres as points and the posed body mesh as
+lines, projected exactly like the sprites (``shaders/viewer_overlay.vert.glsl``).
 
 Programs and buffers are created once in ``__init__`` (buffers grown on demand) and freed
 by ``release``.
@@ -96,49 +93,3 @@ class OverlayRenderer:
     def release(self) -> None:
         for resource in (self._point_vao, self._mesh_vao, self._points, self._vertices, self._edges, self._program):
             resource.release()
-
-
-class SceneCache:
-    """The last scene image (RGBA8, the scene viewport's size) and the pass that shows it."""
-
-    def __init__(self, ctx: moderngl.Context) -> None:
-        self.ctx = ctx
-        self._program = build_program(ctx, "fullscreen.vert", "viewer_blit.frag")
-        self._program["image"] = 0
-        self._vao = ctx.vertex_array(self._program, [])
-        self._texture: moderngl.Texture | None = None
-        self.framebuffer: moderngl.Framebuffer | None = None
-
-    def target(self, size: tuple[int, int]) -> moderngl.Framebuffer:
-        """The framebuffer to draw the scene into, (re)allocated at ``size`` = (W, H)."""
-        if self.framebuffer is None or self.framebuffer.size != size:
-            self._release_target()
-            self._texture = self.ctx.texture(size, 4)
-            self._texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            self.framebuffer = self.ctx.framebuffer(color_attachments=[self._texture])
-        return self.framebuffer
-
-    def show(self, target: moderngl.Framebuffer, viewport: tuple[int, int, int, int]) -> None:
-        """Copy the cached image into ``viewport`` of ``target``."""
-        target.use()
-        self.ctx.viewport = viewport
-        self.ctx.disable(moderngl.BLEND)
-        self._texture.use(0)
-        self._vao.render(moderngl.TRIANGLES, vertices=3)
-
-    def read(self) -> np.ndarray:
-        """(H, W, 3) uint8 of the cached scene image, row 0 at the top."""
-        width, height = self.framebuffer.size
-        data = self.framebuffer.read(components=3, alignment=1)
-        return np.frombuffer(data, np.uint8).reshape(height, width, 3)[::-1].copy()
-
-    def release(self) -> None:
-        self._release_target()
-        for resource in (self._vao, self._program):
-            resource.release()
-
-    def _release_target(self) -> None:
-        for resource in (self.framebuffer, self._texture):
-            if resource is not None:
-                resource.release()
-        self.framebuffer = self._texture = None

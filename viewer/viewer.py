@@ -9,8 +9,9 @@ implies:
 2. the motion clock (or the fixed step of a motion recording);
 3. the model, through the scene's cached evaluator (only the branches whose inputs
    changed re-run; an unchanged state costs nothing);
-4. the sprites (``pghm.gl.SpriteRenderer.draw``) into a cached scene image, only when the
-   Gaussians, camera or display changed; the cache is copied to the window every frame;
+4. the sprites (``pghm.gl.SpriteRenderer.draw``) into the window when the Gaussians, camera
+   or display changed; otherwise the last draw's accumulation is composited again
+   (``SpriteRenderer.present``: the sprites' box, not the sprite pass);
 5. overlays, UI, screenshot / recording capture, buffer swap.
 
 GL resources exist between :meth:`setup` and :meth:`teardown`; constructing a Viewer only
@@ -126,14 +127,13 @@ class Viewer:
     def setup(self) -> None:
         """Open the window and create the GL resources (raises DisplayError without a display)."""
         from pghm.gl import SpriteRenderer, driver_info
-        from viewer.overlay import OverlayRenderer, SceneCache
+        from viewer.overlay import OverlayRenderer
         from viewer.window import Window
 
         self.window = Window(f"pghm-view - {self.avatar_path.name}", self.window_size)
         self.driver = str(driver_info(self.window.ctx))
         self.renderer = SpriteRenderer(self.window.ctx)
         self.overlay = OverlayRenderer(self.window.ctx)
-        self.scene_cache = SceneCache(self.window.ctx)
         self._cache = _Cache()
         cache = FrameCache(int(self.cache_mb * MEGABYTE))
         self.pipeline = ScenePipeline(cache, self.resolution.settings)
@@ -146,7 +146,6 @@ class Viewer:
             self.pipeline = None
         if self.window is None:
             return
-        self.scene_cache.release()
         self.overlay.release()
         self.renderer.release()
         self.window.close()
@@ -330,8 +329,10 @@ class Viewer:
         return cosine >= -BACKFACE_MARGIN
 
     def _draw_scene(self, camera, viewport: tuple[int, int, int, int], status: FrameStatus) -> None:
-        """Sprites into the scene cache when something visible changed; cache and overlays to the window.
+        """Sprites into the window when something visible changed, else the last sprites again; overlays.
 
+        An unchanged scene costs the composite of the sprites' box (``SpriteRenderer.present``),
+        not the sprite pass; no scene image is kept besides the renderer's accumulation.
         While the view moves the sprites are drawn at the dynamic resolution's scale (stretched
         to the viewport); when still, at the display's internal resolution (100% unless the
         approximation is chosen): the exact image. Every draw's time steers the next moving scale.
@@ -341,6 +342,10 @@ class Viewer:
         scale = min(display.render_scale, self.resolution.scale) if status.moving else display.render_scale
         width, height = max(1, round(viewport[2] * scale)), max(1, round(viewport[3] * scale))
         hud.internal_size = (width, height)
+        screen = self.window.ctx.screen
+        screen.use()
+        self.window.ctx.viewport = (0, 0, *self.window.framebuffer_size())
+        screen.clear(*display.background, 1.0)
         if status.shown.arrays is not None:
             w2c = camera.world_to_camera.double().numpy().tobytes()
             # Moving: the float projection and the order view's depth order (viewer.pipeline);
@@ -351,29 +356,24 @@ class Viewer:
             scene_key += (precision, order_view)
             hud.scene_redrawn = scene_key != self._cache.scene_key
             if hud.scene_redrawn:
-                target = self.scene_cache.target((viewport[2], viewport[3]))
                 internal = self.camera.camera(width, height) if (width, height) != viewport[2:] else camera
                 order_camera = order_view.camera(self.camera.offset, width, height) if order_view else None
-                full = (0, 0, *viewport[2:])
                 timings = self.renderer.draw(
                     internal,
                     display.background,
-                    target=target,
-                    viewport=full,
+                    target=screen,
+                    viewport=viewport,
                     precision=precision,
                     order_camera=order_camera,
+                    cleared=True,
                 )
                 hud.sort_ms, hud.draw_ms = timings.sort_ms, timings.draw_ms
                 hud.upload_ms = self._cache.set_gaussians_ms + timings.upload_ms
                 self._cache.set_gaussians_ms = 0.0
                 self._cache.scene_key = scene_key
                 self.resolution.update(scale, timings.draw_ms)  # still frames too: the first move starts right
-        screen = self.window.ctx.screen
-        screen.use()
-        self.window.ctx.viewport = (0, 0, *self.window.framebuffer_size())
-        screen.clear(*display.background, 1.0)
-        if self.scene_cache.framebuffer is not None:
-            self.scene_cache.show(screen, viewport)
+            else:
+                self.renderer.present(display.background, target=screen, viewport=viewport, cleared=True)
         if display.show_mesh:
             self._update_mesh()
         self.overlay.draw(camera, viewport, centres=display.show_centres, mesh=display.show_mesh)

@@ -143,6 +143,17 @@ class SpriteImage:
 
 
 @dataclass(frozen=True)
+class _Drawn:
+    """The last draw(): the sprites' box in its W x H accumulation, the viewport size it was
+    composited to, and whether rows were flipped."""
+
+    box: Box | None
+    size: tuple[int, int]
+    viewport_size: tuple[int, int]
+    flip_y: bool
+
+
+@dataclass(frozen=True)
 class _SpritePrograms:
     """The sprite programs of one projection precision: quads, and points unless quads are forced."""
 
@@ -239,6 +250,7 @@ class SpriteRenderer:
         self._order_key: tuple[int, bytes] | None = None
         self._extent: Extent | None = None
         self._extent_key: tuple | None = None
+        self._drawn: _Drawn | None = None  # what the accumulation holds, for present()
 
         self._size = (0, 0)
         self._accum: moderngl.Texture | None = None
@@ -328,6 +340,7 @@ class SpriteRenderer:
         flip_y: bool = True,
         precision: Literal["float", "double"] | None = None,
         order_camera: CameraLike | None = None,
+        cleared: bool = False,
     ) -> FrameTimings:
         """Draw the Gaussians over ``background`` into ``target``, for presentation.
 
@@ -343,6 +356,8 @@ class SpriteRenderer:
         (cheaper per Gaussian; rare cut-off flips, see the class), and ``order_camera``
         composites in the depth order of another camera, e.g. the view of a few degrees
         ago, whose order is cached (isotropic sprites: only overlapping ones swap).
+        ``cleared``: ``viewport`` already holds ``background`` (a window cleared whole, which
+        llvmpipe does several times faster than the scissored clear of a viewport).
         """
         target = target if target is not None else self.ctx.fbo
         cam = _Pinhole.of(camera)
@@ -355,16 +370,41 @@ class SpriteRenderer:
         timings, box = self._accumulate(
             cam, depth=False, clear_margin=margin, precision=precision or self.precision, order_cam=order_cam
         )
+        self._drawn = _Drawn(box, (cam.width, cam.height), (viewport[2], viewport[3]), flip_y)
         start = time.perf_counter()
-        target.use()
-        target.clear(*background, 1.0, viewport=viewport)
-        if box is not None:
-            screen_box = _map_box(box, (cam.width, cam.height), viewport, flip_y)
-            self._composite_into(screen_box, viewport, background, flip_y=flip_y, opaque=True)
+        self.present(background, target, viewport, cleared)
         self.ctx.finish()
         timings.draw_ms += _ms_since(start)
         self.timings = timings
         return timings
+
+    def present(
+        self,
+        background: tuple[float, float, float],
+        target: moderngl.Framebuffer | None = None,
+        viewport: tuple[int, int, int, int] | None = None,
+        cleared: bool = False,
+    ) -> None:
+        """Composite the last :meth:`draw`'s sprites again, into ``viewport`` of ``target``.
+
+        Without new sprites this is all a frame needs (a window redrawn while the scene is
+        unchanged): the clear and the composite of the sprites' box, not the sprite pass.
+        ``viewport`` must have the last draw's size (its clear margin was made for that
+        stretch); ``background`` and the position may differ. ``cleared``: as in :meth:`draw`.
+        """
+        drawn = self._drawn
+        if drawn is None:
+            raise PghmError("present() shows the last draw(); nothing was drawn since the last render()")
+        target = target if target is not None else self.ctx.fbo
+        viewport = viewport if viewport is not None else (0, 0, *target.size)
+        if (viewport[2], viewport[3]) != drawn.viewport_size:
+            raise PghmError(f"present() needs the last draw's viewport size {drawn.viewport_size}, got {viewport[2:]}")
+        target.use()
+        if not cleared:
+            target.clear(*background, 1.0, viewport=viewport)
+        if drawn.box is not None:
+            screen_box = _map_box(drawn.box, drawn.size, viewport, drawn.flip_y)
+            self._composite_into(screen_box, viewport, background, flip_y=drawn.flip_y, opaque=True)
 
     def release(self) -> None:
         """Free every GL object this renderer created (the context stays the caller's)."""
@@ -398,6 +438,7 @@ class SpriteRenderer:
         timings = FrameTimings()
         size = (cam.width, cam.height)
         fbo = self._accumulation_target(size, depth)
+        self._drawn = None  # the accumulation is about to change
 
         start = time.perf_counter()
         if self._dirty:
@@ -569,6 +610,7 @@ class SpriteRenderer:
                 resource.release()
         self._fbo_depth = self._fbo = self._accum_depth = self._accum = self._image_fbo = self._image = None
         self._size = (0, 0)
+        self._drawn = None
 
     def _release_gaussian_textures(self) -> None:
         for resource in (self._mean_scale, self._color_opacity, self._cpu_order):
