@@ -396,7 +396,6 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
     torso = [BODY_LANDMARKS.index(LANDMARK_NAMES.index(name)) for name in TORSO]
 
     height, width = observations.image_size
-    centre = torch.tensor([width / 2.0, height / 2.0])
     camera = torch.eye(4)
     camera[:3, :3] = torch.as_tensor(CAMERA_LOOK, dtype=torch.float32)
     if observations.K is not None:
@@ -404,7 +403,8 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
         focal0 = float(K[0, 0] + K[1, 1]) / 2
         centre = K[:2, 2].clone()
     else:
-        focal0 = 0.5 * max(height, width) / np.tan(np.radians(config.default_fov_deg) / 2)
+        focal0, principal = default_intrinsics(observations, config.default_fov_deg)
+        centre = torch.as_tensor(principal, dtype=torch.float32)
     log_focal = torch.tensor(np.log(focal0), dtype=torch.float32, requires_grad=True)
     fit_focal = observations.K is None and config.fit_focal
 
@@ -537,6 +537,21 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
         K=K_out,
         residuals=residuals,
     )
+
+
+def default_intrinsics(observations: Observations, fov_deg: float) -> tuple[float, np.ndarray]:
+    """Focal length (pixels) and (2,) principal point of the subject images when K is unknown.
+
+    A camera's field of view spans its whole frame, not the crop the subject images were cut
+    from: with the source frame at x0..x1, y0..y1 in subject pixels (``frame_box``),
+    f = (max(x1 - x0, y1 - y0) / 2) / tan(fov / 2) and the principal point is the frame's
+    centre ((x0 + x1) / 2, (y0 + y1) / 2). Without ``frame_box`` the images are the frame.
+    """
+    height, width = observations.image_size
+    box = observations.frame_box
+    x0, y0, x1, y1 = (0.0, 0.0, float(width), float(height)) if box is None else (float(v) for v in box)
+    focal = 0.5 * max(x1 - x0, y1 - y0) / np.tan(np.radians(fov_deg) / 2)
+    return focal, np.array([(x0 + x1) / 2, (y0 + y1) / 2])
 
 
 def _hip_positions(data: _Frames, focal: float, centre: Tensor) -> Tensor:

@@ -149,6 +149,9 @@ def _observe(
         confidence=confidence[:n],
         landmarks_3d=landmarks_3d[:n],
         masks=masks[:n],
+        frame_box=to_region(np.array([[0.0, 0.0], [source.width, source.height]]), region, out_size)
+        .reshape(4)
+        .astype(np.float32),
     )
     return observations, lost
 
