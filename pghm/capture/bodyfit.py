@@ -51,6 +51,7 @@ from pghm.body import BodyModel, load_body
 from pghm.body.model import CANONICAL_JOINTS
 from pghm.body.skinning import forward_kinematics, kinematic_levels, lbs
 from pghm.capture.landmarks import BODY_LANDMARKS, LANDMARK_NAMES, NUM_LANDMARKS, landmark_regressor
+from pghm.capture.swaps import Landmarks, repair_swaps
 from pghm.errors import PghmError
 
 if TYPE_CHECKING:
@@ -151,6 +152,10 @@ class BodyFitConfig:
     mask_size: int = 128
     """Longest side (pixels) at which the masks are compared."""
 
+    repair_swaps: bool = True
+    """Undo MediaPipe's left/right label swaps (the whole body mirrored, legs or arms traded)
+    found over time (:mod:`pghm.capture.swaps`) before fitting."""
+
     seed: int = 0
     """Random subsampling of vertices and mask pixels."""
 
@@ -240,6 +245,7 @@ class _Frames:
     inside: Tensor  # (F, M, 2) pixels sampled inside each mask (full-size pixel coordinates)
     inside_valid: Tensor  # (F, M) whether the frame had mask pixels to sample
     gaps: Tensor  # (F - 1,) source-frame gaps between consecutive kept frames
+    repaired: dict[str, int]  # frames relabelled per kind of left/right swap (pghm.capture.swaps)
 
 
 def _check(observations: Observations) -> int:
@@ -266,17 +272,25 @@ def _check(observations: Observations) -> int:
 
 def _prepare(observations: Observations, config: BodyFitConfig, rng: np.random.Generator) -> _Frames:
     index = list(BODY_LANDMARKS)
-    points = torch.as_tensor(np.asarray(observations.landmarks_2d, np.float32)[:, index])
-    confidence = torch.as_tensor(np.asarray(observations.confidence, np.float32)[:, index])
-    weights = confidence * (confidence >= config.min_confidence)
-    world3d = torch.as_tensor(np.asarray(observations.landmarks_3d, np.float32)[:, index]) @ torch.as_tensor(
-        CAMERA_LOOK, dtype=torch.float32
+    marks = Landmarks(
+        np.asarray(observations.landmarks_2d, np.float32),
+        np.asarray(observations.confidence, np.float32),
+        np.asarray(observations.landmarks_3d, np.float32),
     )
     masks = np.asarray(observations.masks, bool)
     heights = [np.ptp(np.nonzero(m.any(1))[0]) + 1 for m in masks if m.any()]
     if not heights:  # no mask anywhere: the landmarks' vertical extent
-        heights = [float(p[v, 1].max() - p[v, 1].min()) for p, v in zip(points, weights > 0) if v.sum() > 2]
+        seen = marks.confidence[:, index] >= config.min_confidence
+        heights = [float(np.ptp(p[v, 1])) for p, v in zip(marks.points[:, index], seen) if v.sum() > 2]
     height_px = max(float(np.median(heights)) if heights else 1.0, 1.0)
+    repaired = {}
+    if config.repair_swaps:
+        marks, repair = repair_swaps(marks, height_px, np.asarray(observations.frame_index))
+        repaired = {f"swapped_frames_{kind}": int(flags.sum()) for kind, flags in vars(repair).items()}
+    points = torch.as_tensor(marks.points[:, index])
+    confidence = torch.as_tensor(marks.confidence[:, index])
+    weights = confidence * (confidence >= config.min_confidence)
+    world3d = torch.as_tensor(marks.world[:, index]) @ torch.as_tensor(CAMERA_LOOK, dtype=torch.float32)
 
     step = max(1, int(np.ceil(max(masks.shape[1:]) / config.mask_size)))
     small = masks[:, ::step, ::step]
@@ -300,6 +314,7 @@ def _prepare(observations: Observations, config: BodyFitConfig, rng: np.random.G
         torch.as_tensor(inside),
         torch.as_tensor(inside_valid),
         torch.as_tensor(gaps, dtype=torch.float32),
+        repaired,
     )
 
 
@@ -529,6 +544,7 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
         residuals = {f"term_{k}": float(v) for k, v in terms.items()}
         residuals["landmark_error_px"] = error_px
         residuals["person_height_px"] = data.height_px
+        residuals.update(data.repaired)
     return BodyFit(
         shape=shape.numpy().astype(np.float32),
         rotations=rotations.numpy().astype(np.float32),

@@ -24,7 +24,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pghm.capture.config import CaptureConfig
-from pghm.capture.crop import Region, crop_intrinsics, person_region, to_region
+from pghm.capture.crop import Region, crop_intrinsics, frame_box, person_region, to_region
 from pghm.capture.frontend import (
     NUM_LANDMARKS,
     Observations,
@@ -149,9 +149,7 @@ def _observe(
         confidence=confidence[:n],
         landmarks_3d=landmarks_3d[:n],
         masks=masks[:n],
-        frame_box=to_region(np.array([[0.0, 0.0], [source.width, source.height]]), region, out_size)
-        .reshape(4)
-        .astype(np.float32),
+        frame_box=frame_box(region, source.width, source.height, out_size),
     )
     return observations, lost
 
