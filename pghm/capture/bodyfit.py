@@ -8,6 +8,9 @@ All frames are fitted at once (vectorised torch, Adam), in stages as SMPLify doe
    smoothness and the pose prior;
 3. shape and silhouette: the 6 phenotypes join, with the mask terms.
 
+Before them, MediaPipe's left/right label swaps are found over the video and undone
+(:mod:`pghm.capture.swaps`).
+
 The objective, over frames f and body landmarks l (:mod:`pghm.capture.landmarks`),
 
     E = w_2d   sum c_fl rho(|pi(p_fl) - x_fl| / h)                  2D reprojection
@@ -272,6 +275,10 @@ def _check(observations: Observations) -> int:
             bad = np.unique(np.nonzero(~np.isfinite(value))[0])
             frames_bad = np.asarray(observations.frame_index)[bad].tolist()
             raise PghmError(f"body fit: observations.{name} is not finite in frames {frames_bad}")
+    box = observations.frame_box
+    valid = box is None or (np.shape(box) == (4,) and np.isfinite(box).all() and box[0] < box[2] and box[1] < box[3])
+    if not valid:
+        raise PghmError(f"body fit: observations.frame_box must be finite x0, y0, x1, y1 with x0 < x1, y0 < y1: {box}")
     return frames
 
 
