@@ -456,7 +456,7 @@ def stage_seconds(video: Path, folder: Path) -> dict:
     from pghm.capture.config import CaptureConfig
     from pghm.capture.pipeline import observe_video
 
-    folder.mkdir(parents=True)
+    folder.mkdir(parents=True, exist_ok=True)  # a --keep folder of an earlier run is reused
     started = time.perf_counter()
     front = observe_video(video, folder, CaptureConfig(progress=False))
     front_s = time.perf_counter() - started

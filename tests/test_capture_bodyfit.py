@@ -137,3 +137,8 @@ def test_bad_observations_name_the_problem() -> None:
         fit_body(observations)
     with pytest.raises(PghmError, match="smplx"):
         fit_body(observations, BodyFitConfig(body="smplx"))
+    observations, _ = synthetic("walk", 4)
+    observations.K = None
+    observations.frame_box = np.array([10.0, 0.0, 5.0, 100.0], np.float32)  # x1 < x0
+    with pytest.raises(PghmError, match="frame_box"):
+        fit_body(observations)

@@ -8,6 +8,9 @@ All frames are fitted at once (vectorised torch, Adam), in stages as SMPLify doe
    smoothness and the pose prior;
 3. shape and silhouette: the 6 phenotypes join, with the mask terms.
 
+Before them, MediaPipe's left/right label swaps are found over the video and undone
+(:mod:`pghm.capture.swaps`).
+
 The objective, over frames f and body landmarks l (:mod:`pghm.capture.landmarks`),
 
     E = w_2d   sum c_fl rho(|pi(p_fl) - x_fl| / h)                  2D reprojection
@@ -51,6 +54,7 @@ from pghm.body import BodyModel, load_body
 from pghm.body.model import CANONICAL_JOINTS
 from pghm.body.skinning import forward_kinematics, kinematic_levels, lbs
 from pghm.capture.landmarks import BODY_LANDMARKS, LANDMARK_NAMES, NUM_LANDMARKS, landmark_regressor
+from pghm.capture.swaps import Landmarks, repair_swaps
 from pghm.errors import PghmError
 
 if TYPE_CHECKING:
@@ -124,7 +128,7 @@ class BodyFitConfig:
     """Geman-McClure scale of the 2D terms, as a fraction of the person's height."""
 
     weight_2d: float = 1.0
-    weight_3d: float = 2.0
+    weight_3d: float = 0.5
     huber_3d_m: float = 0.05
     weight_outside: float = 1.0
     weight_coverage: float = 0.3
@@ -136,7 +140,12 @@ class BodyFitConfig:
     """Weights of the objective's terms (module docstring); weight_focal pulls log f to the
     default, weight_shape the phenotypes to Anny's average (MediaPipe's landmarks over
     clothes hardly tell the shape: without it the walker of the mono preset's seed 4 came
-    out far heavier, weight 0.85 for a true 0.38, at the same joint error)."""
+    out far heavier, weight 0.85 for a true 0.38, at the same joint error). weight_3d is
+    low because MediaPipe's world landmarks are 10-30 cm off at the wrists and feet (in
+    depth above all) where its 2D landmarks are 2-3 % of the height off: on capture-bench's
+    48-frame videos 2 -> 0.5 took the 2D error from 1.82 to 1.74 % (plain) and 2.55 to
+    2.41 % (photographs), PA-MPJPE from 60.4 to 58.7 mm over photographs; 0.25 or 6 did
+    not do better."""
 
     silhouette_vertices: int = 600
     """Mesh vertices (an even subsample) tested against the mask."""
@@ -150,6 +159,10 @@ class BodyFitConfig:
 
     mask_size: int = 128
     """Longest side (pixels) at which the masks are compared."""
+
+    repair_swaps: bool = True
+    """Undo MediaPipe's left/right label swaps (the whole body mirrored, legs or arms traded)
+    found over time (:mod:`pghm.capture.swaps`) before fitting."""
 
     seed: int = 0
     """Random subsampling of vertices and mask pixels."""
@@ -240,6 +253,7 @@ class _Frames:
     inside: Tensor  # (F, M, 2) pixels sampled inside each mask (full-size pixel coordinates)
     inside_valid: Tensor  # (F, M) whether the frame had mask pixels to sample
     gaps: Tensor  # (F - 1,) source-frame gaps between consecutive kept frames
+    repaired: dict[str, int]  # frames relabelled per kind of left/right swap (pghm.capture.swaps)
 
 
 def _check(observations: Observations) -> int:
@@ -261,22 +275,34 @@ def _check(observations: Observations) -> int:
             bad = np.unique(np.nonzero(~np.isfinite(value))[0])
             frames_bad = np.asarray(observations.frame_index)[bad].tolist()
             raise PghmError(f"body fit: observations.{name} is not finite in frames {frames_bad}")
+    box = observations.frame_box
+    valid = box is None or (np.shape(box) == (4,) and np.isfinite(box).all() and box[0] < box[2] and box[1] < box[3])
+    if not valid:
+        raise PghmError(f"body fit: observations.frame_box must be finite x0, y0, x1, y1 with x0 < x1, y0 < y1: {box}")
     return frames
 
 
 def _prepare(observations: Observations, config: BodyFitConfig, rng: np.random.Generator) -> _Frames:
     index = list(BODY_LANDMARKS)
-    points = torch.as_tensor(np.asarray(observations.landmarks_2d, np.float32)[:, index])
-    confidence = torch.as_tensor(np.asarray(observations.confidence, np.float32)[:, index])
-    weights = confidence * (confidence >= config.min_confidence)
-    world3d = torch.as_tensor(np.asarray(observations.landmarks_3d, np.float32)[:, index]) @ torch.as_tensor(
-        CAMERA_LOOK, dtype=torch.float32
+    marks = Landmarks(
+        np.asarray(observations.landmarks_2d, np.float32),
+        np.asarray(observations.confidence, np.float32),
+        np.asarray(observations.landmarks_3d, np.float32),
     )
     masks = np.asarray(observations.masks, bool)
     heights = [np.ptp(np.nonzero(m.any(1))[0]) + 1 for m in masks if m.any()]
     if not heights:  # no mask anywhere: the landmarks' vertical extent
-        heights = [float(p[v, 1].max() - p[v, 1].min()) for p, v in zip(points, weights > 0) if v.sum() > 2]
+        seen = marks.confidence[:, index] >= config.min_confidence
+        heights = [float(np.ptp(p[v, 1])) for p, v in zip(marks.points[:, index], seen) if v.sum() > 2]
     height_px = max(float(np.median(heights)) if heights else 1.0, 1.0)
+    repaired = {}
+    if config.repair_swaps:
+        marks, repair = repair_swaps(marks, height_px, np.asarray(observations.frame_index))
+        repaired = {f"swapped_frames_{kind}": int(flags.sum()) for kind, flags in vars(repair).items()}
+    points = torch.as_tensor(marks.points[:, index])
+    confidence = torch.as_tensor(marks.confidence[:, index])
+    weights = confidence * (confidence >= config.min_confidence)
+    world3d = torch.as_tensor(marks.world[:, index]) @ torch.as_tensor(CAMERA_LOOK, dtype=torch.float32)
 
     step = max(1, int(np.ceil(max(masks.shape[1:]) / config.mask_size)))
     small = masks[:, ::step, ::step]
@@ -300,6 +326,7 @@ def _prepare(observations: Observations, config: BodyFitConfig, rng: np.random.G
         torch.as_tensor(inside),
         torch.as_tensor(inside_valid),
         torch.as_tensor(gaps, dtype=torch.float32),
+        repaired,
     )
 
 
@@ -396,7 +423,6 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
     torso = [BODY_LANDMARKS.index(LANDMARK_NAMES.index(name)) for name in TORSO]
 
     height, width = observations.image_size
-    centre = torch.tensor([width / 2.0, height / 2.0])
     camera = torch.eye(4)
     camera[:3, :3] = torch.as_tensor(CAMERA_LOOK, dtype=torch.float32)
     if observations.K is not None:
@@ -404,7 +430,8 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
         focal0 = float(K[0, 0] + K[1, 1]) / 2
         centre = K[:2, 2].clone()
     else:
-        focal0 = 0.5 * max(height, width) / np.tan(np.radians(config.default_fov_deg) / 2)
+        focal0, principal = default_intrinsics(observations, config.default_fov_deg)
+        centre = torch.as_tensor(principal, dtype=torch.float32)
     log_focal = torch.tensor(np.log(focal0), dtype=torch.float32, requires_grad=True)
     fit_focal = observations.K is None and config.fit_focal
 
@@ -529,6 +556,7 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
         residuals = {f"term_{k}": float(v) for k, v in terms.items()}
         residuals["landmark_error_px"] = error_px
         residuals["person_height_px"] = data.height_px
+        residuals.update(data.repaired)
     return BodyFit(
         shape=shape.numpy().astype(np.float32),
         rotations=rotations.numpy().astype(np.float32),
@@ -537,6 +565,21 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
         K=K_out,
         residuals=residuals,
     )
+
+
+def default_intrinsics(observations: Observations, fov_deg: float) -> tuple[float, np.ndarray]:
+    """Focal length (pixels) and (2,) principal point of the subject images when K is unknown.
+
+    A camera's field of view spans its whole frame, not the crop the subject images were cut
+    from: with the source frame at x0..x1, y0..y1 in subject pixels (``frame_box``),
+    f = (max(x1 - x0, y1 - y0) / 2) / tan(fov / 2) and the principal point is the frame's
+    centre ((x0 + x1) / 2, (y0 + y1) / 2). Without ``frame_box`` the images are the frame.
+    """
+    height, width = observations.image_size
+    box = observations.frame_box
+    x0, y0, x1, y1 = (0.0, 0.0, float(width), float(height)) if box is None else (float(v) for v in box)
+    focal = 0.5 * max(x1 - x0, y1 - y0) / np.tan(np.radians(fov_deg) / 2)
+    return focal, np.array([(x0 + x1) / 2, (y0 + y1) / 2])
 
 
 def _hip_positions(data: _Frames, focal: float, centre: Tensor) -> Tensor:

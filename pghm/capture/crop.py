@@ -78,6 +78,12 @@ def to_region(points: np.ndarray, region: Region, out_size: tuple[int, int]) -> 
     return (points - np.array([region.x, region.y])) * scale
 
 
+def frame_box(region: Region, width: int, height: int, out_size: tuple[int, int]) -> np.ndarray:
+    """(4,) float32 x0, y0, x1, y1: the whole W x H frame's extent in the pixels of the images cut from ``region``."""
+    corners = to_region(np.array([[0.0, 0.0], [float(width), float(height)]]), region, out_size)
+    return corners.reshape(4).astype(np.float32)
+
+
 def from_region(points: np.ndarray, region: Region, out_size: tuple[int, int]) -> np.ndarray:
     """Inverse of :func:`to_region`: (..., 2) pixels of the cropped images -> pixels of the full frame."""
     scale = np.array([region.width / out_size[1], region.height / out_size[0]])

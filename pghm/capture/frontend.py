@@ -87,6 +87,10 @@ class Observations:
         landmarks_3d: (F, 33, 3) MediaPipe world landmarks: metres, origin between the hips,
             MediaPipe's axes (x right, y down, z away from the camera), camera-aligned.
         masks: (F, H, W) bool, the person's mask.
+        frame_box: (4,) x0, y0, x1, y1 of the whole source frame in subject-image pixels
+            (the subject images are a crop of it), or None when the images are the whole
+            frame. With K unknown, the body fit's default field of view and principal point
+            are the frame's, not the crop's.
     """
 
     frame_index: np.ndarray
@@ -96,6 +100,7 @@ class Observations:
     confidence: np.ndarray
     landmarks_3d: np.ndarray
     masks: np.ndarray
+    frame_box: np.ndarray | None = None
 
 
 @dataclass

@@ -24,7 +24,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pghm.capture.config import CaptureConfig
-from pghm.capture.crop import Region, crop_intrinsics, person_region, to_region
+from pghm.capture.crop import Region, crop_intrinsics, frame_box, person_region, to_region
 from pghm.capture.frontend import (
     NUM_LANDMARKS,
     Observations,
@@ -149,6 +149,7 @@ def _observe(
         confidence=confidence[:n],
         landmarks_3d=landmarks_3d[:n],
         masks=masks[:n],
+        frame_box=frame_box(region, source.width, source.height, out_size),
     )
     return observations, lost
 
