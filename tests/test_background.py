@@ -81,6 +81,20 @@ def test_composite_target_keeps_the_subject_and_replaces_the_rest():
     assert bool((out[0, :, 0, 0] == torch.tensor([0.2, 0.3, 0.4])).all())
 
 
+def test_a_target_on_white_moves_through_its_matte_onto_any_background_exactly():
+    """I = a c + (1 - a) on white becomes a c + (1 - a) B: the outline's pixels keep their
+    colour's share a c and take the new background's share (1 - a) B, no white left."""
+    g = torch.Generator().manual_seed(3)
+    colour = torch.rand(2, 3, 6, 7, generator=g, dtype=torch.float64)
+    matte = torch.rand(2, 1, 6, 7, generator=g, dtype=torch.float64)
+    matte[..., 0, :] = 0.0  # uncovered
+    matte[..., 1, :] = 1.0  # fully covered
+    background = torch.rand(2, 3, 6, 7, generator=g, dtype=torch.float64)
+    on_white = matte * colour + (1 - matte)
+    expected = matte * colour + (1 - matte) * background
+    torch.testing.assert_close(composite_target(on_white, matte, background), expected, atol=1e-12, rtol=0)
+
+
 def test_silhouette_term_by_hand():
     alpha = torch.tensor([[[[1.0, 0.5], [0.2, 0.0]]], [[[0.0, 0.0], [0.0, 0.0]]]])
     mask = torch.tensor([[[[1.0, 1.0], [0.0, 0.0]]], [[[1.0, 0.0], [0.0, 0.0]]]])

@@ -93,14 +93,14 @@ def test_check_names_a_non_finite_camera(subject_dir, capsys):
     assert _cli_check(subject_dir, capsys)[0] == 2
 
 
-def test_check_names_a_mask_that_is_not_binary(subject_dir, capsys):
+def test_a_soft_matte_passes_the_check_and_reads_back_as_its_fraction(subject_dir, capsys):
     path = subject_dir / "masks" / image_name(1)
     mask = np.asarray(Image.open(path)).copy()
     mask[mask == 255] = 200
     Image.fromarray(mask).save(path)
-    (problem,) = _problems(subject_dir)
-    assert problem.startswith("masks/000001.png: mask not binary")
-    assert _cli_check(subject_dir, capsys)[0] == 2
+    assert _problems(subject_dir) == []
+    read = Subject.open(subject_dir)[1].mask
+    np.testing.assert_array_equal(read, mask.astype(np.float32) / 255)
 
 
 def test_check_names_a_camera_turned_away(subject_dir, capsys):
@@ -150,7 +150,7 @@ def test_reader_is_lazy_and_returns_frame_records(subject_dir):
     frame = train[1]
     assert frame.image.dtype == np.float32 and frame.image.shape == (64, 64, 3)
     assert 0.0 <= frame.image.min() and frame.image.max() <= 1.0
-    assert set(np.unique(frame.mask)) <= {0.0, 1.0}
+    assert 0.0 <= frame.mask.min() and frame.mask.max() == 1.0
     assert frame.K.shape == (3, 3) and frame.world_to_camera.shape == (4, 4)
     assert frame.rotations.shape == (len(subject.arrays.bone_names), 3) and frame.translation.shape == (3,)
     assert (frame.frame_index, frame.view_index) == (0, 1)

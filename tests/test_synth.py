@@ -101,12 +101,15 @@ def test_tiny_dataset_is_valid_and_complete(tiny):
         assert subject.meta["identity"]["shape"] == pytest.approx(subject.arrays.shape.tolist(), abs=1e-6)
         frame = subject[0]
         assert frame.image.shape == (64, 64, 3) and frame.mask.shape == (64, 64)
-        # The subject is in the picture; the background (beyond the one-pixel band of
-        # partly covered edge pixels around the mask) is pure white.
-        assert 0.05 < frame.mask.mean() < 0.6
-        padded = np.pad(frame.mask, 1)
-        near = sum(padded[i : i + 64, j : j + 64] for i in range(3) for j in range(3)) > 0
-        assert np.all(frame.image[~near] == 1.0)
+        # The subject is in the picture; the mask is its alpha matte: pure white wherever the
+        # matte is 0, partly covered pixels (0 < a < 1) on the outline only.
+        assert 0.05 < (frame.mask >= 0.5).mean() < 0.6
+        assert np.all(frame.image[frame.mask == 0] == 1.0)
+        edge = (frame.mask > 0) & (frame.mask < 1)
+        assert edge.any()
+        # An image on white through matte a is a c + (1 - a) >= 1 - a (c >= 0): on black it is
+        # I - (1 - a) >= 0 up to the 8-bit rounding of both files.
+        assert (frame.image - (1 - frame.mask[..., None])).min() >= -1.0 / 255
 
 
 def test_same_seed_gives_identical_bytes_and_other_seed_differs(tiny, tmp_path):
@@ -299,7 +302,7 @@ def test_dataset_cameras_and_exact_poses_reproduce_the_masks(tiny, body):
             positions[0].astype(np.float64), frame.K.astype(np.float64), frame.world_to_camera.astype(np.float64)
         )
         expected = pixel_bbox_of_points(uv)
-        assert np.abs(np.subtract(mask_bbox(frame.mask > 0), expected)).max() <= BBOX_TOLERANCE_PX
+        assert np.abs(np.subtract(mask_bbox(frame.mask >= 0.5), expected)).max() <= BBOX_TOLERANCE_PX
 
 
 def test_look_at_matches_the_splatter_camera():

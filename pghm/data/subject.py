@@ -3,7 +3,9 @@
 A subject is one folder:
 
     images/NNNNNN.png   RGB, white background, image i named with six digits
-    masks/NNNNNN.png    8-bit grey, foreground 255, background 0
+    masks/NNNNNN.png    8-bit grey alpha matte: 255 on the person, 0 off it, on the outline
+                        the covered fraction (a binary 0/255 mask is a valid matte); the
+                        person is the pixels >= 128
     cameras.npz         K (n, 3, 3), world_to_camera (n, 4, 4) (OpenCV axes: x right,
                         y down, z forward), height (n,), width (n,); optional
                         frame_index (n,), view_index (n,) (multi-view captures)
@@ -186,7 +188,7 @@ def write_image(directory: str | Path, index: int, rgb: np.ndarray, mask: np.nda
         directory: the subject folder (``images/`` and ``masks/`` are created).
         index: image index.
         rgb: (H, W, 3) uint8, composited on white.
-        mask: (H, W) uint8, 0 or 255.
+        mask: (H, W) uint8 alpha matte, 255 x the covered fraction (0 or 255 for a binary mask).
         compress_level: zlib level 0-9; 1 is ~5x faster than the default 6 for ~15 % more bytes.
     """
     directory = Path(directory)
@@ -207,7 +209,8 @@ class Frame:
     Attributes:
         index: image index in the subject.
         image: (H, W, 3) float32 RGB in [0, 1], white background.
-        mask: (H, W) float32, 1 on the subject, 0 elsewhere.
+        mask: (H, W) float32 alpha matte in [0, 1]: 1 on the subject, 0 elsewhere, the covered
+            fraction on its outline (>= 0.5 is the subject).
         K: (3, 3) float32 intrinsics.
         world_to_camera: (4, 4) float32 extrinsics, OpenCV axes.
         rotations: (J, 3) float32 axis-angle pose.
@@ -429,13 +432,13 @@ def read_rgb(path: Path) -> np.ndarray:
 
 
 def read_mask(path: Path) -> np.ndarray:
-    """(H, W) float32 in {0, 1} from a mask PNG (pixels >= 128 are foreground)."""
+    """(H, W) float32 alpha matte in [0, 1] from a mask PNG (pixel / 255; >= 128 is the subject)."""
     try:
         with Image.open(path) as image:
             pixels = np.asarray(image.convert("L"))
     except IMAGE_READ_ERRORS as error:
         raise DatasetError(f"{path}: unreadable mask ({_first_line(error)})") from None
-    return (pixels >= 128).astype(np.float32)
+    return pixels.astype(np.float32) / 255.0
 
 
 class SubjectSplit(Sequence[Frame]):
@@ -638,9 +641,9 @@ def _check_cameras(cameras: dict, poses: dict | None, problems: list[Problem]) -
         )
 
 
-def _check_png(path: Path, label: str, mode: str, size: tuple[int, int], problems: list[Problem], binary: bool) -> None:
+def _check_png(path: Path, label: str, mode: str, size: tuple[int, int], problems: list[Problem]) -> None:
     """Size and mode of one PNG, and its pixels decoded (a truncated file fails there, not in
-    training); a mask (``binary``) must hold only 0 and 255."""
+    training)."""
     if not path.is_file():
         problems.append(Problem(label, "missing"))
         return
@@ -656,12 +659,6 @@ def _check_png(path: Path, label: str, mode: str, size: tuple[int, int], problem
             if image.mode != mode:
                 problems.append(Problem(label, f"mode {image.mode}, expected {mode}"))
             image.load()
-            if binary and image.mode in ("L", "1", "P", "LA", "RGB", "RGBA"):
-                values = np.unique(np.asarray(image.convert("L")))
-                if not np.isin(values, (0, 255)).all():
-                    problems.append(
-                        Problem(label, f"mask not binary ({len(values)} distinct values; expected only 0 and 255)")
-                    )
     except IMAGE_READ_ERRORS as error:
         problems.append(Problem(label, f"unreadable PNG ({_first_line(error)})"))
 
@@ -670,7 +667,7 @@ def check_subject(directory: str | Path) -> list[Problem]:
     """Every problem found in a subject folder (empty when it is valid).
 
     Reads the small files whole, then streams through the images and masks, decoding each
-    (one at a time) so a truncated PNG is found here; masks must be binary.
+    (one at a time) so a truncated PNG is found here.
     """
     directory = Path(directory)
     problems: list[Problem] = []
@@ -754,7 +751,7 @@ def check_subject(directory: str | Path) -> list[Problem]:
         for i in range(n):
             size = (int(cameras["width"][i]), int(cameras["height"][i]))
             name = image_name(i)
-            _check_png(directory / folder / name, f"{folder}/{name}", mode, size, problems, binary=folder == "masks")
+            _check_png(directory / folder / name, f"{folder}/{name}", mode, size, problems)
     return problems
 
 

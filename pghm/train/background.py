@@ -5,10 +5,15 @@ The splatter composites front to back onto a background b (pghm.splat, step 6):
     rgb_b = sum_i c_i alpha_i T_i + (1 - alpha) b,     alpha = 1 - T_N,
 
 so a render on any background image B (3, H, W) is the render on black plus (1 - alpha) B,
-exactly: one render serves every background. A target photographed (or synthesised) on white
-with a binary mask m is moved onto B by
+exactly: one render serves every background. A target stored on white (the subject format)
+with its alpha matte a (the covered fraction of each pixel, 0 outside the person, 1 inside,
+in between on the outline) is I = a c + (1 - a) with c the person's colour, so on B it is
 
-    I_B = m I + (1 - m) B.
+    I_B = a c + (1 - a) B = I - (1 - a)(1 - B)     where a > 0,   B where a = 0
+
+(exact; for a binary mask m it is m I + (1 - m) B). A binary mask instead of the matte would
+leave the white (1 - a) of the outline's pixels in every target: an opaque whitish rim the
+avatar learns, which on a dark background shows as a one-pixel halo (docs/training.md).
 
 Training on white alone lets a semi-transparent white fringe around the silhouette cost nothing
 (it is invisible on white and glows on a dark background); a background that changes every step
@@ -67,10 +72,11 @@ def parse_colour(text: str) -> tuple[float, float, float]:
     return values
 
 
-def composite_target(image: Tensor, mask: Tensor, background: Tensor) -> Tensor:
-    """(B, 3, H, W) targets I (B, 3, H, W) moved through masks m (B, 1, H, W) onto backgrounds
-    (B, 3, H, W) or (3, 1, 1): m I + (1 - m) background."""
-    return mask * image + (1.0 - mask) * background
+def composite_target(image: Tensor, matte: Tensor, background: Tensor) -> Tensor:
+    """(B, 3, H, W) targets I on white (B, 3, H, W) moved through their alpha mattes a
+    (B, 1, H, W) in [0, 1] onto backgrounds B (B, 3, H, W) or (3, 1, 1):
+    I - (1 - a)(1 - B) where a > 0, B elsewhere (module doc)."""
+    return torch.where(matte > 0, image - (1.0 - matte) * (1.0 - background), background)
 
 
 def composite_render(rgb_on_black: Tensor, alpha: Tensor, background: Tensor) -> Tensor:

@@ -3,8 +3,9 @@
 PSNR, SSIM (and LPIPS when its weights are on this machine) over whole images, of the dynamic
 render I_d against the ground truth, with the poses and cameras the subject folder provides. On
 white (the default, as the paper measures) the ground truth is the stored image; on another
-background b it is the stored image moved through its mask m onto b, m I + (1 - m) b
-(:mod:`pghm.train.background`). Whatever the background, two silhouette measures:
+background b it is the stored image moved through its alpha matte a onto b, I - (1 - a)(1 - b)
+(:mod:`pghm.train.background`; m I + (1 - m) b for a binary mask). Whatever the background,
+two silhouette measures:
 
     IoU   |{A > 0.5} & {m}| / |{A > 0.5} | {m}|, A the render's accumulated alpha;
     halo  the number of pixels outside the mask whose render on black has a mean RGB above
@@ -111,7 +112,7 @@ def render_images(avatar: Avatar, data: TrainingData, indices: list[int], body_m
 
 def on_background(sample: Sample, rgb_on_black: Tensor, alpha: Tensor, background: tuple[float, float, float]):
     """(target, render), each (3, H, W) in [0, 1], on ``background``: on white the stored image
-    (the paper's measure), elsewhere the image moved through its mask."""
+    (the paper's measure), elsewhere the image moved through its alpha matte."""
     colour = torch.tensor(background, dtype=rgb_on_black.dtype).view(3, 1, 1)
     image = composite_render(rgb_on_black, alpha[None], colour).clamp(0, 1)
     target = sample.image if background == WHITE else composite_target(sample.image, sample.mask, colour)

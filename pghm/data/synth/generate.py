@@ -46,7 +46,7 @@ from pghm.errors import PghmError
 from pghm.io.outputs import staged_folder
 from pghm.test_hook import interrupt_point
 
-GENERATOR_VERSION = "1.0"
+GENERATOR_VERSION = "1.1"
 """Bumped whenever the same config and seed would give different bytes."""
 
 POSE_BATCH = 32
@@ -423,7 +423,7 @@ def render_images(config: SynthConfig, plan: SubjectPlan, directory: Path, frame
     """
     written = 0
     for i, view in render_views(config, plan, frames):
-        write_image(directory, i, view.rgb, view.mask, config.png_compression)
+        write_image(directory, i, view.rgb, view.coverage, config.png_compression)
         written += 1
         if progress is not None:
             progress(1)
