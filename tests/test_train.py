@@ -126,13 +126,13 @@ def test_eval_of_a_perfect_render(tiny_dataset, prior_file, tmp_path, monkeypatc
         FitConfig(stage1=LoopConfig(steps=1, checkpoint_every=0), stage2=LoopConfig(steps=0), lpips=False),
     )
 
-    def opaque(avatar, data, indices, body_model_path=None):
+    def opaque(avatar, data, indices, body_model_path=None, corrections=None):
         """The stored image itself, fully opaque: perfect on white, every pixel outside the mask a halo."""
         for index in indices:
             sample = data.load(0, index)
             yield sample, sample.image.clone(), torch.ones(sample.image.shape[1:])
 
-    def cut_out(avatar, data, indices, body_model_path=None):
+    def cut_out(avatar, data, indices, body_model_path=None, corrections=None):
         """The subject exactly, transparent outside its mask: perfect on any background."""
         for index in indices:
             sample = data.load(0, index)
@@ -178,6 +178,44 @@ def test_eval_of_a_real_avatar_writes_reports(tiny_dataset, prior_file, tmp_path
     assert part.psnr == pytest.approx([result.psnr[-1], result.psnr[0]], abs=1e-5)
     with pytest.raises(PghmError, match="not in the subject's 'test' split"):
         evaluate(avatar, tiny_dataset / "subject_000", images=[10**6])
+
+
+POSE_SHIFT = np.array([0.08, 0.05, 0.0], dtype=np.float32)
+"""A known error of the stored root translation (metres): 2-3 pixels of the tiny subject's 64."""
+
+
+def test_test_time_pose_refinement_moves_shifted_poses_back(tiny_dataset, prior_file, tmp_path):
+    """The test frames' stored translations shifted by POSE_SHIFT: refining them against their images
+    (avatar frozen) brings them closer to the poses the images were rendered with, and the
+    evaluation's PSNR rises; the avatar's parameters are untouched."""
+    import shutil
+
+    from pghm.train.evaluate import evaluate
+    from pghm.train.test_poses import refine_test_poses
+
+    avatar = fit(
+        tiny_dataset / "subject_000",
+        prior_file,
+        tmp_path / "a.pt",
+        FitConfig(
+            stage1=LoopConfig(steps=4, checkpoint_every=0), stage2=LoopConfig(steps=4, checkpoint_every=0), lpips=False
+        ),
+    )
+    shifted = tmp_path / "shifted"
+    shutil.copytree(tiny_dataset / "subject_000", shifted)
+    poses = dict(np.load(shifted / "poses.npz"))
+    poses["translation"] = poses["translation"] + POSE_SHIFT
+    np.savez(shifted / "poses.npz", **poses)
+    data = TrainingData(shifted, split="test")
+    before = [p.detach().clone() for p in avatar.model.parameters()]
+    corrections = refine_test_poses(avatar, data, steps=30, progress=False)
+    assert all(torch.equal(a, b) for a, b in zip(before, avatar.model.parameters()))
+    keys = torch.tensor([data.load(0, i).frame_key for i in data.images[0]])
+    left = torch.from_numpy(POSE_SHIFT) + corrections.translation[keys]
+    assert float(left.norm(dim=1).max()) < 0.7 * float(np.linalg.norm(POSE_SHIFT))
+    stored = evaluate(avatar, shifted).summary()["psnr"]
+    refined = evaluate(avatar, shifted, refine_poses=30).summary()["psnr"]
+    assert refined > stored + 0.5
 
 
 def test_learning_rate_ten_times_too_high_leaves_no_nan(tiny_dataset, tmp_path, caplog):

@@ -148,6 +148,14 @@ def register(subparsers) -> None:
     evaluate.add_argument("--strip", default=None, help="PNG strip path (default: AVATAR.eval.png)")
     evaluate.add_argument("--true-poses", action="store_true", help="render with a synthetic subject's exact poses")
     evaluate.add_argument(
+        "--refine-poses",
+        type=STEPS,
+        default=0,
+        metavar="STEPS",
+        help="first fit each evaluated frame's pose to its image for STEPS steps, the avatar frozen "
+        "(test-time pose refinement, for estimated poses such as a capture's); 0: off (default %(default)s)",
+    )
+    evaluate.add_argument(
         "--background",
         type=parse_colour,
         default=WHITE,
@@ -242,6 +250,7 @@ def run_eval(args: argparse.Namespace) -> int:
         body_model_path=args.body_model_path,
         true_poses=args.true_poses,
         background=args.background,
+        refine_poses=args.refine_poses,
     )
     print(json.dumps(result.summary()))
     print(f"wrote {report} and {strip}")

@@ -19,6 +19,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,9 +35,10 @@ from pghm.io.avatar import Avatar, avatar_geometry, load_avatar, recorded_path
 from pghm.model.evaluator import CachedEvaluator
 from pghm.splat import render
 from pghm.train.background import BLACK, WHITE, composite_render, composite_target
-from pghm.train.data import Sample, TrainingData
+from pghm.train.data import PoseCorrections, Sample, TrainingData
 from pghm.train.losses import psnr, ssim
 from pghm.train.lpips import load_lpips, lpips_status
+from pghm.train.test_poses import refine_test_poses
 
 ERROR_SCALE = 0.25
 """Mean absolute RGB error shown at full intensity in the heat map."""
@@ -97,13 +99,24 @@ def heat_map(error: np.ndarray) -> np.ndarray:
     return (colormaps["inferno"](np.clip(error / ERROR_SCALE, 0, 1))[..., :3] * 255).astype(np.uint8)
 
 
-def render_images(avatar: Avatar, data: TrainingData, indices: list[int], body_model_path: str | None = None):
-    """Yield (sample, render on black (3, H, W), alpha (H, W)) of the dynamic Gaussians, one image at a time."""
+def render_images(
+    avatar: Avatar,
+    data: TrainingData,
+    indices: list[int],
+    body_model_path: str | None = None,
+    corrections: PoseCorrections | None = None,
+):
+    """Yield (sample, render on black (3, H, W), alpha (H, W)) of the dynamic Gaussians, one image
+    at a time; each sample's pose through ``corrections`` when given."""
     evaluator = CachedEvaluator(avatar.model.eval(), avatar_geometry(avatar, body_model_path=body_model_path))
     identity = avatar.identity_map()
     for index in indices:
         sample = data.load(0, index)
-        pose = BodyPose(sample.rotations[None], sample.translation[None])
+        rotations, translation = sample.rotations[None], sample.translation[None]
+        if corrections is not None:
+            with torch.no_grad():
+                rotations, translation = corrections(torch.tensor([sample.frame_key]), rotations, translation)
+        pose = BodyPose(rotations, translation)
         g = evaluator.evaluate(identity, pose, sample.camera.centre.float()).dynamic
         with torch.no_grad():
             drawn = render(g.means[0], g.scales[0], g.colors[0], g.opacities[0], sample.camera, background=BLACK)
@@ -129,6 +142,7 @@ def evaluate(
     true_poses: bool = False,
     images: list[int] | None = None,
     background: tuple[float, float, float] = WHITE,
+    refine_poses: int = 0,
 ) -> EvalResult:
     """Metrics of ``avatar`` on the ``split`` images of the subject; optional JSON and PNG outputs.
 
@@ -137,6 +151,8 @@ def evaluate(
             estimates (measures appearance apart from pose error).
         images: evaluate only these image indices of the split (None: all of them).
         background: (r, g, b) in [0, 1] behind the render and the target (white: the paper's).
+        refine_poses: steps of test-time pose refinement (:mod:`pghm.train.test_poses`) before
+            rendering: the held-out frames' poses fitted to their images, the avatar frozen; 0: off.
     """
     background = tuple(float(c) for c in background)
     avatar = avatar if isinstance(avatar, Avatar) else load_avatar(avatar)
@@ -157,10 +173,15 @@ def evaluate(
         if outside:
             raise PghmError(f"images {outside[:5]} are not in the subject's '{split}' split")
         indices = [int(i) for i in images]
+    corrections, refine_seconds = None, 0.0
+    if refine_poses > 0:
+        started = time.perf_counter()
+        corrections = refine_test_poses(avatar, data, refine_poses, body_model_path)
+        refine_seconds = time.perf_counter() - started
     strip_at = set(indices[:: max(1, len(indices) // STRIP_FRAMES)][:STRIP_FRAMES])
     result = EvalResult([], [], [] if lpips is not None else None, [], background=background)
     rows = []
-    for sample, rgb_on_black, alpha in render_images(avatar, data, indices, body_model_path):
+    for sample, rgb_on_black, alpha in render_images(avatar, data, indices, body_model_path, corrections):
         index = sample.image_index
         target, image = on_background(sample, rgb_on_black, alpha, background)
         result.images.append(index)
@@ -181,6 +202,7 @@ def evaluate(
             "subject": recorded_path(subject_dir),
             "split": split,
             "poses": "exact (synthetic)" if true_poses else "as stored",
+            "pose_refinement": {"steps": refine_poses, "seconds": round(refine_seconds, 1)},
             "mean": result.summary(),
             "lpips": lpips_status(),
             "halo": f"pixels outside the mask with mean RGB above {HALO_LEVEL} rendered on black",
