@@ -257,7 +257,10 @@ def bench_moving_error(ctx, avatar) -> list[dict]:
         return orbit_camera(framing.target, yaw, 10.0, framing.distance, 40.0, *size)
 
     approximations = [(stale_label(lag), {"order_lag": lag}) for lag in sorted(set(STALE_DEGREES))]
-    approximations += [("float projection", {"precision": "float"}), (f"internal resolution {MOVING_SCALE:.0%}", {"scale": MOVING_SCALE})]
+    approximations += [
+        ("float projection", {"precision": "float"}),
+        (f"internal resolution {MOVING_SCALE:.0%}", {"scale": MOVING_SCALE}),
+    ]
     rows = []
     try:
         for label, option in approximations:

@@ -53,9 +53,7 @@ def test_viterbi_matches_brute_force() -> None:
     assert viterbi(unary, pairwise).tolist() == paths[int(np.argmin(costs))].tolist()
 
 
-@pytest.mark.parametrize(
-    "body_frames,leg_frames", [([9, 10, 11], []), ([], [4]), ([], [15, 16]), ([3], [18, 19])]
-)
+@pytest.mark.parametrize("body_frames,leg_frames", [([9, 10, 11], []), ([], [4]), ([], [15, 16]), ([3], [18, 19])])
 def test_constructed_swaps_are_undone(body_frames: list[int], leg_frames: list[int]) -> None:
     marks, height = walk_landmarks()
     swapped = relabel(relabel(marks, body_frames, BODY_PAIRS, True), leg_frames, LEG_PAIRS, False)

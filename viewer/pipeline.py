@@ -129,7 +129,6 @@ class ScenePipeline:
     def close(self) -> None:
         self.worker.close()
 
-
     # ------------------------------------------------------------------ per frame
 
     def update(

@@ -290,7 +290,6 @@ class AvatarScene:
             raise PghmError(f"speed must be in [{SPEED_RANGE[0]}, {SPEED_RANGE[1]}], got {speed}")
         self.pose_state.speed = float(speed)
 
-
     # ------------------------------------------------------------------- outputs
 
     def framing(self, aspect: float) -> Framing:

@@ -81,9 +81,7 @@ def smooth_run(rotations: Tensor, translation: Tensor, sigma: float) -> tuple[Te
     return smoothed.to(rotations.dtype), (translation_sum / weight_sum[:, None]).to(translation.dtype)
 
 
-def smooth_track(
-    frames: np.ndarray, rotations: Tensor, translation: Tensor, sigma: float
-) -> tuple[Tensor, Tensor]:
+def smooth_track(frames: np.ndarray, rotations: Tensor, translation: Tensor, sigma: float) -> tuple[Tensor, Tensor]:
     """Smooth a pose track over time, each run of consecutive frames on its own.
 
     Args:
