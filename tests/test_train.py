@@ -45,6 +45,12 @@ def fixed_loss(model, data: TrainingData) -> float:
     return float(np.mean(losses))
 
 
+def tiny_avatar(subject, prior_file, out, stage1: int, stage2: int):
+    """A quick fit of the tiny subject: ``stage1`` + ``stage2`` steps, no checkpoints, no LPIPS."""
+    stages = [LoopConfig(steps=n, checkpoint_every=0) for n in (stage1, stage2)]
+    return fit(subject, prior_file, out, FitConfig(stage1=stages[0], stage2=stages[1], lpips=False))
+
+
 @pytest.fixture(scope="module")
 def prior_file(tiny_dataset, tmp_path_factory):
     path = tmp_path_factory.mktemp("prior") / "prior.pt"
@@ -122,12 +128,7 @@ def test_eval_of_a_perfect_render(tiny_dataset, prior_file, tmp_path, monkeypatc
 
     BLACK_PIXEL = torch.zeros(3, 1, 1)
 
-    avatar = fit(
-        tiny_dataset / "subject_000",
-        prior_file,
-        tmp_path / "a.pt",
-        FitConfig(stage1=LoopConfig(steps=1, checkpoint_every=0), stage2=LoopConfig(steps=0), lpips=False),
-    )
+    avatar = tiny_avatar(tiny_dataset / "subject_000", prior_file, tmp_path / "a.pt", 1, 0)
 
     def opaque(avatar, data, indices, body_model_path=None, corrections=None):
         """The stored image itself, fully opaque: perfect on white, every pixel outside the mask a halo."""
@@ -167,14 +168,7 @@ def test_eval_of_a_perfect_render(tiny_dataset, prior_file, tmp_path, monkeypatc
 def test_eval_of_a_real_avatar_writes_reports(tiny_dataset, prior_file, tmp_path):
     from pghm.train.evaluate import evaluate
 
-    avatar = fit(
-        tiny_dataset / "subject_000",
-        prior_file,
-        tmp_path / "a.pt",
-        FitConfig(
-            stage1=LoopConfig(steps=1, checkpoint_every=0), stage2=LoopConfig(steps=1, checkpoint_every=0), lpips=False
-        ),
-    )
+    avatar = tiny_avatar(tiny_dataset / "subject_000", prior_file, tmp_path / "a.pt", 1, 1)
     result = evaluate(avatar, tiny_dataset / "subject_000", tmp_path / "r.json", tmp_path / "s.png")
     summary = result.summary()
     assert 5 < summary["psnr"] < 60 and 0 < summary["ssim"] < 1
@@ -201,14 +195,7 @@ def test_test_time_pose_refinement_moves_shifted_poses_back(tiny_dataset, prior_
     from pghm.train.evaluate import evaluate
     from pghm.train.test_poses import refine_test_poses
 
-    avatar = fit(
-        tiny_dataset / "subject_000",
-        prior_file,
-        tmp_path / "a.pt",
-        FitConfig(
-            stage1=LoopConfig(steps=4, checkpoint_every=0), stage2=LoopConfig(steps=4, checkpoint_every=0), lpips=False
-        ),
-    )
+    avatar = tiny_avatar(tiny_dataset / "subject_000", prior_file, tmp_path / "a.pt", 4, 4)
     shifted = tmp_path / "shifted"
     shutil.copytree(tiny_dataset / "subject_000", shifted)
     poses = dict(np.load(shifted / "poses.npz"))
