@@ -50,7 +50,7 @@ from pghm.splat import render
 from viewer.demo import development_avatar
 from viewer.dynamic_resolution import ResolutionSettings
 from viewer.pipeline import ORDER_REFRESH_DEGREES
-from viewer.settings import BACKFACE_MARGIN, DEFAULT_AVATAR
+from viewer.settings import BACKFACE_DEGREES, DEFAULT_AVATAR
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENE_VIEWPORT = (920, 800)
@@ -173,21 +173,19 @@ def bench_orbit(ctx, frames: int) -> list[dict]:
         for k, angle in enumerate(np.concatenate([angles[:2], angles])):
             for (_label, _precision, scale, cull, _primitive), renderer, record in zip(options, renderers, records):
                 camera = body_orbit_camera(angle, scale)
+                if k == 0:
+                    renderer.set_gaussians(means, scales, colors, opacities, normals)
+                cull_degrees = BACKFACE_DEGREES if cull else None
                 start = time.perf_counter()
-                if cull:
-                    centre = camera.centre.double().numpy()
-                    view = (centre[None] - means).astype(np.float32)
-                    cosine = (normals * view).sum(1) / np.linalg.norm(view, axis=1)
-                    keep = cosine >= -BACKFACE_MARGIN
-                    renderer.set_gaussians(means[keep], scales[keep], colors[keep], opacities[keep])
-                    record["drawn"].append(int(keep.sum()))
-                elif k == 0:
-                    renderer.set_gaussians(means, scales, colors, opacities)
-                renderer.draw(camera, (1.0, 1.0, 1.0), target=screen)
+                timings = renderer.draw(camera, (1.0, 1.0, 1.0), target=screen, cull_degrees=cull_degrees)
                 if k < 2:  # warm-up
                     continue
                 record["times"].append((time.perf_counter() - start) * 1e3)
-                renderer.draw(camera, (1.0, 1.0, 1.0), target=option_target, viewport=(0, 0, *ORBIT_SIZE))
+                if cull:
+                    record["drawn"].append(timings.drawn)
+                renderer.draw(
+                    camera, (1.0, 1.0, 1.0), target=option_target, viewport=(0, 0, *ORBIT_SIZE), cull_degrees=cull_degrees
+                )
                 exact.draw(body_orbit_camera(angle), (1.0, 1.0, 1.0), target=exact_target)
                 error = np.abs(_read(option_target) - _read(exact_target))
                 record["max"].append(float(error.max()))

@@ -261,21 +261,34 @@ def test_after_a_scrub_settles_the_window_shows_the_exact_frame_the_timeline_nam
     viewer.open_motion("rest")
 
 
+def facing_count(arrays, centre: np.ndarray, degrees: float) -> int:
+    """Gaussians whose posed normal is within 90 + ``degrees`` of the direction to ``centre``, by brute force."""
+    to_camera = centre[None].astype(np.float64) - arrays.means
+    cosine = np.einsum("nk,nk->n", arrays.normals.astype(np.float64), to_camera) / np.linalg.norm(to_camera, axis=1)
+    return int((np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))) <= 90.0 + degrees).sum())
+
+
 def test_after_an_orbit_settles_the_window_shows_the_exact_image(viewer, tmp_path):
     """Orbit in small steps, one frame each: the moving frames composite in the depth order of
-    an earlier view (and project in float, at reduced resolution); once settled the order is
-    the view's own and the scene is the exact image."""
+    an earlier view (and project in float, at reduced resolution) and draw only the Gaussians
+    facing that view (back-face culling); once settled the order is the view's own, every
+    Gaussian is drawn and the scene is the exact image."""
     viewer.open_motion("rest")
     viewer.settle()
     stale = 0
+    degrees = viewer.resolution.settings.moving_cull_degrees
     for _ in range(12):
         viewer.orbit(6.0, 1.0)
         viewer.frame()
         assert viewer.status.moving
         stale += viewer.status.order_view != viewer.camera.view()
+        order_centre = viewer.status.order_view.centre(viewer.camera.offset)
+        assert viewer.hud.drawn == facing_count(viewer.status.shown.arrays, order_centre, degrees)
+        assert viewer.hud.drawn < 0.8 * viewer.hud.gaussians
     assert stale > 0, "moving frames kept an earlier view's order"
     shown = scene_shot(viewer, tmp_path / "orbited.png")
     assert viewer.status.order_view == viewer.camera.view(), "settled: the view's own order"
+    assert viewer.hud.drawn == viewer.hud.gaussians, "settled: no culling"
     assert_exact_frame(viewer, shown, 0)
     viewer.reset_camera()
 

@@ -41,6 +41,10 @@ class ResolutionSettings:
     """The sprites' projection while moving: float32 costs less per Gaussian on llvmpipe (at the
     least scale the vertex work, not the pixels, is most of the draw) and its rare cut-off flips
     (max 2.4e-3) are far below the reduced resolution's error; the settled frame uses the renderer's."""
+    moving_cull_degrees: float | None = 30.0
+    """Back-face culling while moving (None: off): the sprites facing the order view, with this margin
+    in degrees past the silhouette (:func:`pghm.gl.cull.facing`), enter the depth order and the pass;
+    the settled frame draws every Gaussian."""
 
     def __post_init__(self) -> None:
         if self.draw_budget_ms <= 0:
@@ -49,6 +53,8 @@ class ResolutionSettings:
             raise PghmError(f"minimum scale must be in (0, 1], got {self.min_scale}")
         if self.moving_precision not in ("float", "double"):
             raise PghmError(f"moving precision must be 'float' or 'double', got {self.moving_precision!r}")
+        if self.moving_cull_degrees is not None and not 0 <= self.moving_cull_degrees <= 90:
+            raise PghmError(f"moving cull margin must be in [0, 90] degrees, got {self.moving_cull_degrees}")
 
 
 class ResolutionController:

@@ -17,9 +17,10 @@ WINDOW_SIZE = (1280, 800)
 """Default window size, screen pixels."""
 PANEL_WIDTH = 360
 """Width of the control panel on the window's left; the scene fills the rest."""
-BACKFACE_MARGIN = 0.3
-"""Back-face culling keeps a Gaussian unless n . v < -this (v: unit vector to the camera):
-Gaussians near the silhouette (n . v ~ 0) stay, because their blobs still show."""
+BACKFACE_DEGREES = 17.5
+"""The display option's back-face culling keeps a Gaussian unless its normal is more than 90 + this
+degrees from the direction to the camera (n . v < -0.30, :func:`pghm.gl.cull.facing`): Gaussians
+near the silhouette (n . v ~ 0) stay, because their blobs still show."""
 SCALE_RANGE = (0.1, 4.0)
 """Point-size modifier range (multiplies every Gaussian's scale)."""
 RENDER_SCALES = (1.0, 0.75, 0.5)
@@ -66,7 +67,7 @@ class HudStats:
     draw_ms: float = 0.0
     gaussians: int = 0
     drawn: int = 0
-    """Gaussians sent to the renderer (fewer than ``gaussians`` with back-face culling)."""
+    """Gaussians the last sprite pass drew (fewer than ``gaussians`` with back-face culling)."""
     scene_redrawn: bool = False
     internal_size: tuple[int, int] = (0, 0)
     """Pixels the sprites were drawn at (below the viewport while the view moves)."""

@@ -29,7 +29,7 @@ import numpy as np
 
 from pghm.errors import PghmError
 from pghm.io.avatar import load_avatar
-from pghm.render import GaussianArrays, GaussianSet
+from pghm.render import GaussianSet
 from pghm.render.frame_cache import DEFAULT_BUDGET_MB, MEGABYTE, FrameCache
 from viewer.camera import OrbitController
 from viewer.dynamic_resolution import ResolutionController, ResolutionSettings
@@ -37,7 +37,7 @@ from viewer.panels import PanelState, draw_panels, handle_mouse
 from viewer.pipeline import FrameStatus, ScenePipeline, Shown
 from viewer.recording import Recording, RecordSource, save_png, start_recording
 from viewer.scene import AvatarScene
-from viewer.settings import BACKFACE_MARGIN, PANEL_WIDTH, SCALE_RANGE, WINDOW_SIZE, DisplaySettings, HudStats
+from viewer.settings import BACKFACE_DEGREES, PANEL_WIDTH, SCALE_RANGE, WINDOW_SIZE, DisplaySettings, HudStats
 
 IDLE_WAIT = 0.05
 """Seconds the loop sleeps waiting for input when nothing animates (the machine is shared)."""
@@ -231,7 +231,7 @@ class Viewer:
             block=block,
         )
         if self.status.shown.arrays is not None:
-            self._update_gaussians(camera, self.status.shown)
+            self._update_gaussians(self.status.shown)
         self._draw_scene(camera, viewport, self.status)
         self._hud_work()
         if recording is not None and recording.source == "motion":
@@ -301,32 +301,23 @@ class Viewer:
         display = self.display
         return self.scene.snapshot(display.gaussians, display.view_dependent, display.follow)
 
-    def _update_gaussians(self, camera, shown: Shown) -> None:
-        """Upload the chosen Gaussians when they, the point size or (culling) the camera changed."""
+    def _update_gaussians(self, shown: Shown) -> None:
+        """Upload the chosen Gaussians when they or the point size changed (with their normals:
+        back-face culling happens in the renderer, with the depth order)."""
         display = self.display
         arrays = shown.arrays
         hud = self.hud
         hud.gaussians = arrays.count
-        cull_key = camera.centre.numpy().tobytes() if display.cull_backfacing else None
-        key = (shown.source, display.scale_multiplier, cull_key)
+        key = (shown.source, display.scale_multiplier)
         if key != self._cache.upload_key:
             if shown.source != (self._cache.upload_key or (None,))[0]:  # new Gaussians: show what they cost
                 hud.model_ms, hud.skinning_ms = shown.model_ms, shown.skinning_ms
             start = time.perf_counter()
-            keep = self._facing(arrays, camera.centre.numpy()) if display.cull_backfacing else slice(None)
-            scales = arrays.scales[keep] * display.scale_multiplier
-            self.renderer.set_gaussians(arrays.means[keep], scales, arrays.colors[keep], arrays.opacities[keep])
+            scales = arrays.scales * display.scale_multiplier
+            self.renderer.set_gaussians(arrays.means, scales, arrays.colors, arrays.opacities, arrays.normals)
             self.overlay.set_points(arrays.means)
             self._cache.set_gaussians_ms = (time.perf_counter() - start) * 1e3
-            hud.drawn = self.renderer.count
             self._cache.upload_key = key
-
-    @staticmethod
-    def _facing(arrays: GaussianArrays, centre: np.ndarray) -> np.ndarray:
-        """(N,) bool: Gaussians whose normal n has n . v >= -BACKFACE_MARGIN, v the unit vector to the camera."""
-        view = centre[None, :].astype(np.float32) - arrays.means
-        cosine = (arrays.normals * view).sum(axis=1) / np.maximum(np.linalg.norm(view, axis=1), 1e-9)
-        return cosine >= -BACKFACE_MARGIN
 
     def _draw_scene(self, camera, viewport: tuple[int, int, int, int], status: FrameStatus) -> None:
         """Sprites into the window when something visible changed, else the last sprites again; overlays.
@@ -352,8 +343,9 @@ class Viewer:
             # still: the renderer's precision and the view's own order, the exact image.
             precision = self.resolution.settings.moving_precision if status.moving else None
             order_view = status.order_view if status.order_view != self.camera.view() else None
+            cull = self._cull_degrees(status.moving)
             scene_key = (self._cache.upload_key, w2c, viewport[2:], display.background, (width, height))
-            scene_key += (precision, order_view)
+            scene_key += (precision, order_view, cull)
             hud.scene_redrawn = scene_key != self._cache.scene_key
             if hud.scene_redrawn:
                 internal = self.camera.camera(width, height) if (width, height) != viewport[2:] else camera
@@ -366,8 +358,9 @@ class Viewer:
                     precision=precision,
                     order_camera=order_camera,
                     cleared=True,
+                    cull_degrees=cull,
                 )
-                hud.sort_ms, hud.draw_ms = timings.sort_ms, timings.draw_ms
+                hud.sort_ms, hud.draw_ms, hud.drawn = timings.sort_ms, timings.draw_ms, timings.drawn
                 hud.upload_ms = self._cache.set_gaussians_ms + timings.upload_ms
                 self._cache.set_gaussians_ms = 0.0
                 self._cache.scene_key = scene_key
@@ -377,6 +370,13 @@ class Viewer:
         if display.show_mesh:
             self._update_mesh()
         self.overlay.draw(camera, viewport, centres=display.show_centres, mesh=display.show_mesh)
+
+    def _cull_degrees(self, moving: bool) -> float | None:
+        """Back-face culling's margin for this frame (None: every Gaussian): while moving the
+        dynamic resolution's (``moving_cull_degrees``), when still the display option's."""
+        if moving:
+            return self.resolution.settings.moving_cull_degrees
+        return BACKFACE_DEGREES if self.display.cull_backfacing else None
 
     def _update_mesh(self) -> None:
         pose = self.scene.current_pose()

@@ -46,6 +46,7 @@ import moderngl
 import numpy as np
 
 from pghm.errors import PghmError
+from pghm.gl.cull import camera_centre, facing
 from pghm.gl.footprint import Box, Extent, grow, sprite_extent
 from pghm.gl.resources import (
     MAX_GAUSSIANS,
@@ -111,6 +112,7 @@ class FrameTimings:
         readback_ms: ``render`` only: composite pass and copy of the float image to numpy.
         sorted: whether this frame sorted.
         primitive: "points" or "quads", what the sprite pass drew ("" when nothing was drawn).
+        drawn: sprites the pass was given (all Gaussians, or those kept by back-face culling).
     """
 
     sort_ms: float = 0.0
@@ -119,6 +121,7 @@ class FrameTimings:
     readback_ms: float = 0.0
     sorted: bool = False
     primitive: str = ""
+    drawn: int = 0
 
     @property
     def total_ms(self) -> float:
@@ -244,6 +247,8 @@ class SpriteRenderer:
         self._mean_scale_staging = np.zeros((0, 4), np.float32)  # (capacity, 4): mu, s
         self._color_opacity_staging = np.zeros((0, 4), np.float32)  # (capacity, 4): c, o
         self._order_staging = np.zeros(0, np.float32)
+        self._normals: np.ndarray | None = None  # (N, 3) for back-face culling, CPU only
+        self._order_count = 0  # Gaussians in the draw order (fewer than N when culled)
         self._dirty = False
         self._version = 0  # bumped by set_gaussians; part of the sort cache key
         self._order: moderngl.Texture | None = None
@@ -265,7 +270,9 @@ class SpriteRenderer:
         """N, the number of Gaussians last set."""
         return self._count
 
-    def set_gaussians(self, means: object, scales: object, colors: object, opacities: object) -> None:
+    def set_gaussians(
+        self, means: object, scales: object, colors: object, opacities: object, normals: object | None = None
+    ) -> None:
         """Replace the Gaussians; the textures are written at the next frame.
 
         Args:
@@ -273,6 +280,8 @@ class SpriteRenderer:
             scales: (N,) standard deviations (world units).
             colors: (N, 3) RGB.
             opacities: (N,) in [0, 1].
+            normals: (N, 3) unit surface normals, or None; only back-face culling
+                (``draw(cull_degrees=...)``) reads them.
             All float32-convertible numpy arrays or torch tensors (detached, copied).
         """
         means = as_array("means", means, (-1, 3))
@@ -280,16 +289,20 @@ class SpriteRenderer:
         scales = as_array("scales", scales, (count,))
         colors = as_array("colors", colors, (count, 3))
         opacities = as_array("opacities", opacities, (count,))
+        normals = as_array("normals", normals, (count, 3)).copy() if normals is not None else None
         if count > MAX_GAUSSIANS:
             raise PghmError(f"at most {MAX_GAUSSIANS} Gaussians are supported, got {count}")
-        # Colours alone (e.g. view-dependent colour for a new view) keep the depth order and the
-        # sprites' extent: both depend only on the means, scales and opacities.
+        # Colours alone (e.g. view-dependent colour for a new view) keep the depth order, its
+        # cull and the sprites' extent: they depend only on the means, scales, opacities and normals.
         same_geometry = (
             count == self._count
             and np.array_equal(self._mean_scale_staging[:count, :3], means)
             and np.array_equal(self._mean_scale_staging[:count, 3], scales)
             and np.array_equal(self._color_opacity_staging[:count, 3], opacities)
+            and (normals is None) == (self._normals is None)
+            and (normals is None or np.array_equal(self._normals, normals))
         )
+        self._normals = normals
         self._reserve(texture_rows(count))
         self._mean_scale_staging[:count, :3] = means
         self._mean_scale_staging[:count, 3] = scales
@@ -341,6 +354,7 @@ class SpriteRenderer:
         precision: Literal["float", "double"] | None = None,
         order_camera: CameraLike | None = None,
         cleared: bool = False,
+        cull_degrees: float | None = None,
     ) -> FrameTimings:
         """Draw the Gaussians over ``background`` into ``target``, for presentation.
 
@@ -356,6 +370,9 @@ class SpriteRenderer:
         (cheaper per Gaussian; rare cut-off flips, see the class), and ``order_camera``
         composites in the depth order of another camera, e.g. the view of a few degrees
         ago, whose order is cached (isotropic sprites: only overlapping ones swap).
+        ``cull_degrees`` d (needs ``normals``): back-face culling, made with the depth order and
+        cached with it: only the Gaussians facing the order camera's centre with a margin of d
+        degrees past the silhouette (:func:`pghm.gl.cull.facing`) enter the order and the pass.
         ``cleared``: ``viewport`` already holds ``background`` (a window cleared whole, which
         llvmpipe does several times faster than the scissored clear of a viewport).
         """
@@ -367,8 +384,17 @@ class SpriteRenderer:
         # A window pixel inside the composite box samples within 0.5 / scale + 1 texels of
         # the sprite box: clear that far so bilinear taps never read a stale texel.
         margin = 2 + math.ceil(0.5 / min(scale))
+        if cull_degrees is not None and self._normals is None:
+            raise PghmError("back-face culling needs normals: pass them to set_gaussians")
+        if cull_degrees is not None and self._sorter is not None:
+            raise PghmError("back-face culling needs sort='cpu'")
         timings, box = self._accumulate(
-            cam, depth=False, clear_margin=margin, precision=precision or self.precision, order_cam=order_cam
+            cam,
+            depth=False,
+            clear_margin=margin,
+            precision=precision or self.precision,
+            order_cam=order_cam,
+            cull_degrees=cull_degrees,
         )
         self._drawn = _Drawn(box, (cam.width, cam.height), (viewport[2], viewport[3]), flip_y)
         start = time.perf_counter()
@@ -426,12 +452,19 @@ class SpriteRenderer:
     # ----------------------------------------------------------------- per frame
 
     def _accumulate(
-        self, cam: _Pinhole, depth: bool, clear_margin: int, precision: str, order_cam: _Pinhole
+        self,
+        cam: _Pinhole,
+        depth: bool,
+        clear_margin: int,
+        precision: str,
+        order_cam: _Pinhole,
+        cull_degrees: float | None = None,
     ) -> tuple[FrameTimings, Box | None]:
         """Upload and sort if needed, then blend the sprites into the float target.
 
         The sprites are projected in ``precision`` and composited in the depth order of
-        ``order_cam`` (``cam`` for the exact image). Returns the stage timings and the box
+        ``order_cam`` (``cam`` for the exact image), only those facing it when
+        ``cull_degrees`` is given. Returns the stage timings and the box
         holding every sprite (None: nothing drawn); only the box grown by ``clear_margin``
         pixels is cleared.
         """
@@ -453,10 +486,13 @@ class SpriteRenderer:
         extent = self._bounds(cam)
         box = extent.box if extent is not None else None
         timings.sort_ms = _ms_since(start)
-        # The order depends only on the depth axis: the third row of world_to_camera.
-        order_key = (self._version, order_cam.world_to_camera[2].tobytes())
+        # The order depends only on the depth axis: the third row of world_to_camera; the cull
+        # on the camera's centre too.
+        order_key = (self._version, order_cam.world_to_camera[2].tobytes(), cull_degrees)
+        if cull_degrees is not None:
+            order_key += (camera_centre(order_cam.world_to_camera).tobytes(),)
         if box is not None and order_key != self._order_key:
-            self._sort(order_cam, timings)
+            self._sort(order_cam, timings, cull_degrees)
             self._order_key = order_key
 
         start = time.perf_counter()
@@ -481,10 +517,11 @@ class SpriteRenderer:
             program["image_size"] = (float(cam.width), float(cam.height))
             program["guard"] = float(guard)
             if primitive == "points":
-                vao.render(moderngl.POINTS, vertices=self._count)
+                vao.render(moderngl.POINTS, vertices=self._order_count)
             else:
-                vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._count)
+                vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._order_count)
             timings.primitive = primitive
+            timings.drawn = self._order_count
             self.ctx.disable(moderngl.BLEND | moderngl.PROGRAM_POINT_SIZE)
             self.ctx.scissor = None
             self.ctx.viewport = (0, 0, *size)
@@ -545,19 +582,28 @@ class SpriteRenderer:
         self._composite_vao.render(moderngl.TRIANGLES, vertices=3)
         self.ctx.scissor = None
 
-    def _sort(self, cam: _Pinhole, timings: FrameTimings) -> None:
-        """Recompute the front-to-back order into ``self._order``; adds to sort/upload times."""
+    def _sort(self, cam: _Pinhole, timings: FrameTimings, cull_degrees: float | None = None) -> None:
+        """Recompute the front-to-back order into ``self._order`` (of the Gaussians facing
+        ``cam`` when ``cull_degrees`` is given); adds to sort/upload times."""
         start = time.perf_counter()
         if self._sorter is not None:
             self._order = self._sorter.sort(self._mean_scale, self._count, cam.world_to_camera)
+            self._order_count = self._count
             self.ctx.finish()  # so that sort_ms measures the GPU work, not its submission
             timings.sort_ms += _ms_since(start)
         else:
-            order = depth_order(view_depths(self._mean_scale_staging[: self._count, :3], cam.world_to_camera))
+            means = self._mean_scale_staging[: self._count, :3]
+            if cull_degrees is None:
+                order = depth_order(view_depths(means, cam.world_to_camera))
+            else:
+                # The kept indices ascend, so ties stay in index order within the kept ones.
+                kept = np.flatnonzero(facing(means, self._normals, camera_centre(cam.world_to_camera), cull_degrees))
+                order = kept[depth_order(view_depths(means[kept], cam.world_to_camera))]
+            self._order_count = order.size
             timings.sort_ms += _ms_since(start)
             start = time.perf_counter()
-            rows = texture_rows(self._count)
-            self._order_staging[: self._count] = order  # exact: indices < 2^24
+            rows = texture_rows(self._order_count)
+            self._order_staging[: self._order_count] = order  # exact: indices < 2^24
             self._cpu_order.write(self._order_staging[: rows * TEXTURE_WIDTH], viewport=(0, 0, TEXTURE_WIDTH, rows))
             self._order = self._cpu_order
             timings.upload_ms += _ms_since(start)
