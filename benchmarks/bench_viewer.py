@@ -20,7 +20,8 @@ Sections (all by default):
   playback_p95_ms, scrub_first_pass_median_ms, orbit_moving_p95_ms, slider_ui_max_ms.
   With it, headless: each approximation of a moving frame (a depth order some degrees
   behind, the float projection, the least internal resolution) against the exact image;
-  the keys orbit_stale_order_max_error / _mean_error (the order at the refresh angle).
+  the keys orbit_stale_order_max_error / _mean_error (the order at the refresh angle) and
+  orbit_cull_max_error / _mean_error (back-face culling made at the refresh angle's lag).
 
     xvfb-run -a -s "-screen 0 1920x1080x24" .venv/bin/python benchmarks/bench_viewer.py \
         [--frames 40] [--sections interactive scrub orbit accuracy window]
@@ -220,7 +221,9 @@ def bench_orbit(ctx, frames: int) -> list[dict]:
 STALE_DEGREES = (2.5, 5.0, ORDER_REFRESH_DEGREES, 20.0)
 """How far the order's view lags the drawn view (degrees of yaw) in the stale-order error."""
 STALE_VIEWS = 8
-MOVING_SCALE = ResolutionSettings().min_scale
+MOVING = ResolutionSettings()
+"""The viewer's moving-frame settings (projection, culling margin)."""
+MOVING_SCALE = MOVING.min_scale
 """The dynamic resolution's least internal scale, for comparison."""
 
 
@@ -230,6 +233,11 @@ def stale_label(lag: float) -> str:
 
 STALE_LABEL = stale_label(ORDER_REFRESH_DEGREES)
 """The row of the viewer's refresh angle: the largest lag a moving frame's order has."""
+CULL_LABEL = (
+    f"cull {MOVING.moving_cull_degrees:g} degrees, made {ORDER_REFRESH_DEGREES:g} degrees behind "
+    "(against the unculled image in that order)"
+)
+"""The culling's own error at the largest lag (orbit_cull_max_error / _mean_error)."""
 
 
 def bench_moving_error(ctx, avatar) -> list[dict]:
@@ -237,9 +245,11 @@ def bench_moving_error(ctx, avatar) -> list[dict]:
 
     Compositing in the depth order of a view ``lag`` degrees behind the drawn one (what a
     moving camera trades when it keeps its last order, viewer.pipeline), the float
-    projection, and for scale the reduced internal resolution: the shipped avatar (walk
-    frame 20) at 1280 x 720 from 8 views; RGB error per pixel, and the pixels over 1/255
-    (one 8-bit level) per image.
+    projection, the reduced internal resolution, back-face culling (for the drawn view; made
+    with an order ``ORDER_REFRESH_DEGREES`` behind, against the unculled image in that order:
+    the culling's own error), and a whole moving frame at the largest lag with and without
+    culling: the shipped avatar (walk frame 20) at 1280 x 720 from 8 views; RGB error per
+    pixel, the pixels over 1/255 (one 8-bit level) per image, the Gaussians drawn.
     """
     driver = AvatarDriver(avatar)
     pose = open_motion("walk", driver.body, driver.geometry.shape).pose(20)
@@ -248,35 +258,50 @@ def bench_moving_error(ctx, avatar) -> list[dict]:
     framing = frame_points(arrays.means, 40.0, width / height)
     exact_target, approx_target = _float_target(ctx, ORBIT_SIZE), _float_target(ctx, ORBIT_SIZE)
     renderer = SpriteRenderer(ctx)
-    renderer.set_gaussians(arrays.means, arrays.scales, arrays.colors, arrays.opacities)
+    renderer.set_gaussians(arrays.means, arrays.scales, arrays.colors, arrays.opacities, arrays.normals)
 
     def camera(yaw: float, scale: float = 1.0):
         size = (round(width * scale), round(height * scale))
         return orbit_camera(framing.target, yaw, 10.0, framing.distance, 40.0, *size)
 
     approximations = [(stale_label(lag), {"order_lag": lag}) for lag in sorted(set(STALE_DEGREES))]
+    cull, lag = MOVING.moving_cull_degrees, ORDER_REFRESH_DEGREES
+    moving_frame = {"order_lag": lag, "precision": MOVING.moving_precision, "scale": MOVING_SCALE}
     approximations += [
-        ("float projection", {"precision": "float"}),
+        ("float projection", {"precision": MOVING.moving_precision}),
         (f"internal resolution {MOVING_SCALE:.0%}", {"scale": MOVING_SCALE}),
+        (f"cull {cull:g} degrees (the drawn view's)", {"cull_degrees": cull}),
+        (CULL_LABEL, {"order_lag": lag, "cull_degrees": cull, "reference_lag": lag}),
+        (f"moving frame ({lag:g} behind, float, {MOVING_SCALE:.0%}), no culling", moving_frame),
+        (f"moving frame ({lag:g} behind, float, {MOVING_SCALE:.0%}), culled", {**moving_frame, "cull_degrees": cull}),
     ]
     rows = []
     try:
         for label, option in approximations:
-            errors = []
+            errors, drawn = [], []
             for k in range(STALE_VIEWS):
                 yaw = 360.0 * k / STALE_VIEWS + 10.0
-                renderer.draw(camera(yaw), (1.0, 1.0, 1.0), target=exact_target, flip_y=False)
-                lag = option.get("order_lag")
+                reference_lag = option.get("reference_lag")
                 renderer.draw(
-                    camera(yaw, option.get("scale", 1.0)),
+                    camera(yaw),
+                    (1.0, 1.0, 1.0),
+                    target=exact_target,
+                    flip_y=False,
+                    order_camera=camera(yaw - reference_lag) if reference_lag else None,
+                )
+                order_lag, scale = option.get("order_lag"), option.get("scale", 1.0)
+                timings = renderer.draw(
+                    camera(yaw, scale),
                     (1.0, 1.0, 1.0),
                     target=approx_target,
                     viewport=(0, 0, width, height),
                     flip_y=False,
                     precision=option.get("precision"),
-                    order_camera=camera(yaw - lag) if lag else None,
+                    order_camera=camera(yaw - order_lag, scale) if order_lag else None,
+                    cull_degrees=option.get("cull_degrees"),
                 )
                 errors.append(np.abs(_read(approx_target) - _read(exact_target)).max(axis=-1))
+                drawn.append(timings.drawn)
             errors = np.stack(errors)
             rows.append(
                 {
@@ -284,6 +309,7 @@ def bench_moving_error(ctx, avatar) -> list[dict]:
                     "max_error": float(errors.max()),
                     "mean_error": float(errors.mean()),
                     "pixels_over_1/255_per_image": float((errors > 1.0 / 255.0).sum() / len(errors)),
+                    "gaussians_drawn": float(np.mean(drawn)),
                 }
             )
     finally:
@@ -522,6 +548,9 @@ def main() -> None:
         stale = next(row for row in results["moving_error"] if row["approximation"] == STALE_LABEL)
         results["orbit_stale_order_max_error"] = stale["max_error"]
         results["orbit_stale_order_mean_error"] = stale["mean_error"]
+        culled = next(row for row in results["moving_error"] if row["approximation"] == CULL_LABEL)
+        results["orbit_cull_max_error"] = culled["max_error"]
+        results["orbit_cull_mean_error"] = culled["mean_error"]
     ctx.release()
     if "window" in args.sections:
         if os.environ.get("DISPLAY"):
