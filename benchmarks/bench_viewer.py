@@ -409,6 +409,9 @@ LATENCY_FRAMES = 400
 """At most this many frames wait for the dragged pose to appear."""
 PASS_KEYS = ("idle", "playback", "scrub_first_pass", "scrub_cached", "orbit_moving", "slider_ui")
 """idle: nothing changes (UI and the cached scene image only), the floor of every other frame."""
+AFTER_KEYS = ("orbit_moving_unculled",)
+"""After only: orbiting with the moving frames' back-face culling off, measured right after the
+culled orbit (the culling's gain within one run)."""
 
 
 def frame_times(viewer, frames: int, action) -> list[float]:
@@ -449,6 +452,12 @@ def interactive_pass(viewer, frames: int, synchronous: bool) -> dict:
     viewer.settle()
     out["orbit_moving"] = frame_times(viewer, frames, lambda k: viewer.orbit(6.0, 0.0))
     viewer.settle()
+    if not synchronous:
+        settings = viewer.resolution.settings
+        cull, settings.moving_cull_degrees = settings.moving_cull_degrees, None
+        out["orbit_moving_unculled"] = frame_times(viewer, frames, lambda k: viewer.orbit(6.0, 0.0))
+        settings.moving_cull_degrees = cull
+        viewer.settle()
     viewer.open_motion("rest")
     viewer.settle()
     drag = SLIDER_DRAG[: max(frames // 2, 2)]
@@ -487,7 +496,7 @@ def bench_interactive(avatar_path: Path, frames: int) -> dict:
     result = {"viewport": [1280, 720], "frames_per_measurement": frames, "loads": loads}
     for name, runs in passes.items():
         row = {}
-        for key in PASS_KEYS:
+        for key in PASS_KEYS + (AFTER_KEYS if name == "after" else ()):
             times = [t for run in runs for t in run[key]]
             row[f"{key}_median_ms"] = float(np.median(times))
             row[f"{key}_p95_ms"] = float(np.percentile(times, 95))
@@ -510,6 +519,8 @@ def print_interactive(result: dict) -> None:
     name = "slider_latency_ms"
     rows.append({"measure": name, "before": before[name], "after": after[name], "ratio": after[name] / before[name]})
     print_table(rows)
+    unculled = ", ".join(f"{stat} {after[f'orbit_moving_unculled_{stat}_ms']:.1f}" for stat in ("median", "p95", "max"))
+    print(f"after, orbit with the moving frames' back-face culling off (ms): {unculled}")
     print(f"cache after one pass: {after['cache_frames']} frames, {after['cache_mb']:.1f} MB; loads {result['loads']}")
 
 
