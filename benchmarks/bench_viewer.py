@@ -50,7 +50,7 @@ from pghm.render import AvatarDriver, frame_points, orbit_camera
 from pghm.splat import render
 from viewer.demo import development_avatar
 from viewer.dynamic_resolution import ResolutionSettings
-from viewer.pipeline import ORDER_REFRESH_DEGREES
+from viewer.pipeline import COLOUR_REFRESH_DEGREES, ORDER_REFRESH_DEGREES
 from viewer.settings import BACKFACE_DEGREES, DEFAULT_AVATAR
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -238,6 +238,9 @@ CULL_LABEL = (
     "(against the unculled image in that order)"
 )
 """The culling's own error at the largest lag (orbit_cull_max_error / _mean_error)."""
+COLOUR_LAGS = (COLOUR_REFRESH_DEGREES, 45.0, 90.0)
+"""How far the view-dependent colour's view lags the drawn view: the viewer's refresh angle
+(the largest lag while orbiting) and larger ones, for the trade a larger angle would make."""
 
 
 def bench_moving_error(ctx, avatar) -> list[dict]:
@@ -247,13 +250,16 @@ def bench_moving_error(ctx, avatar) -> list[dict]:
     moving camera trades when it keeps its last order, viewer.pipeline), the float
     projection, the reduced internal resolution, back-face culling (for the drawn view; made
     with an order ``ORDER_REFRESH_DEGREES`` behind, against the unculled image in that order:
-    the culling's own error), and a whole moving frame at the largest lag with and without
-    culling: the shipped avatar (walk frame 20) at 1280 x 720 from 8 views; RGB error per
-    pixel, the pixels over 1/255 (one 8-bit level) per image, the Gaussians drawn.
+    the culling's own error), a whole moving frame at the largest lag with and without
+    culling, and view-dependent colour made for a view ``COLOUR_LAGS`` behind (what an orbit
+    shows between two colour refreshes, against the colour of the drawn view): the shipped
+    avatar (walk frame 20) at 1280 x 720 from 8 views; RGB error per pixel, the pixels over
+    1/255 (one 8-bit level) per image, the Gaussians drawn.
     """
     driver = AvatarDriver(avatar)
     pose = open_motion("walk", driver.body, driver.geometry.shape).pose(20)
-    arrays = driver.evaluate(avatar.identity_map(), pose, np.array([0.0, 0.0, 3.0]))
+    identity = avatar.identity_map()
+    arrays = driver.evaluate(identity, pose, np.array([0.0, 0.0, 3.0]))
     width, height = ORBIT_SIZE
     framing = frame_points(arrays.means, 40.0, width / height)
     exact_target, approx_target = _float_target(ctx, ORBIT_SIZE), _float_target(ctx, ORBIT_SIZE)
@@ -275,13 +281,23 @@ def bench_moving_error(ctx, avatar) -> list[dict]:
         (f"moving frame ({lag:g} behind, float, {MOVING_SCALE:.0%}), no culling", moving_frame),
         (f"moving frame ({lag:g} behind, float, {MOVING_SCALE:.0%}), culled", {**moving_frame, "cull_degrees": cull}),
     ]
+    # Last: these replace the Gaussians (colours) per view.
+    approximations += [(f"colour made {lag:g} degrees behind", {"colour_lag": lag}) for lag in COLOUR_LAGS]
+
+    def seen_from(yaw: float) -> tuple:
+        """The Gaussians with view-dependent colour made for the view at ``yaw``."""
+        seen = driver.evaluate(identity, pose, camera(yaw).centre.numpy())
+        return seen.means, seen.scales, seen.colors, seen.opacities, seen.normals
+
     rows = []
     try:
         for label, option in approximations:
             errors, drawn = [], []
             for k in range(STALE_VIEWS):
                 yaw = 360.0 * k / STALE_VIEWS + 10.0
-                reference_lag = option.get("reference_lag")
+                reference_lag, colour_lag = option.get("reference_lag"), option.get("colour_lag")
+                if colour_lag is not None:
+                    renderer.set_gaussians(*seen_from(yaw))
                 renderer.draw(
                     camera(yaw),
                     (1.0, 1.0, 1.0),
@@ -289,6 +305,8 @@ def bench_moving_error(ctx, avatar) -> list[dict]:
                     flip_y=False,
                     order_camera=camera(yaw - reference_lag) if reference_lag else None,
                 )
+                if colour_lag is not None:
+                    renderer.set_gaussians(*seen_from(yaw - colour_lag))
                 order_lag, scale = option.get("order_lag"), option.get("scale", 1.0)
                 timings = renderer.draw(
                     camera(yaw, scale),
