@@ -185,7 +185,11 @@ def bench_orbit(ctx, frames: int) -> list[dict]:
                 if cull:
                     record["drawn"].append(timings.drawn)
                 renderer.draw(
-                    camera, (1.0, 1.0, 1.0), target=option_target, viewport=(0, 0, *ORBIT_SIZE), cull_degrees=cull_degrees
+                    camera,
+                    (1.0, 1.0, 1.0),
+                    target=option_target,
+                    viewport=(0, 0, *ORBIT_SIZE),
+                    cull_degrees=cull_degrees,
                 )
                 exact.draw(body_orbit_camera(angle), (1.0, 1.0, 1.0), target=exact_target)
                 error = np.abs(_read(option_target) - _read(exact_target))
