@@ -308,7 +308,10 @@ def test_after_a_seek_settles_the_drawn_frame_is_the_frame_the_timeline_names(mo
     assert pipeline.worker.wait_idle(WAIT)
     status = pipeline.update(FakeSnapshot("clip", 1), 12, FRONT, np.zeros(3), now + 0.01)
     assert status.shown.exact and not status.pending and drawn_frame(status) == 12
-    assert set(model.frames) <= {0, 5, 12} and len(model.frames) <= 4, "the scrub did not queue every frame"
+    # The worker took one scrub frame before the newest replaced the rest: which one depends on
+    # when its thread ran (5 when at once, a later one on a loaded machine), not on the pipeline.
+    between = set(model.frames) - {0, 12}
+    assert len(between) <= 1 and between <= set(range(5, 12)) and len(model.frames) <= 4, "the scrub queued frames"
 
 
 def test_a_moving_camera_asks_nothing_until_it_turns_far_and_the_still_view_is_exact(model_pipeline):
