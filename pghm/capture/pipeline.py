@@ -117,7 +117,7 @@ def _observe(
     last = int(track.frame_index[-1])
     frames = source.frames(region, out_size, config.every, config.max_frames)
     with (
-        PersonFinder() as find,
+        PersonFinder(mirrored=config.mirror_pass) as find,
         _bar(config, count, "masks, landmarks") as bar,
     ):
         for index, image in frames:
