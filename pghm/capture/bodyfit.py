@@ -132,7 +132,7 @@ class BodyFitConfig:
     huber_3d_m: float = 0.05
     weight_outside: float = 1.0
     weight_coverage: float = 0.3
-    weight_smooth: float = 100.0
+    weight_smooth: float = 50.0
     weight_pose: float = 0.002
     weight_limits: float = 1.0
     weight_focal: float = 0.1
@@ -145,7 +145,10 @@ class BodyFitConfig:
     depth above all) where its 2D landmarks are 2-3 % of the height off: on capture-bench's
     48-frame videos 2 -> 0.5 took the 2D error from 1.82 to 1.74 % (plain) and 2.55 to
     2.41 % (photographs), PA-MPJPE from 60.4 to 58.7 mm over photographs; 0.25 or 6 did
-    not do better."""
+    not do better. weight_smooth 100 -> 50 (with the front end's mirrored pass, 100-frame
+    videos, seeds 0-2): MPJPE / PA-MPJPE / 2D 75.6 / 49.1 / 1.70 % -> 74.7 / 47.5 / 1.57 %
+    (plain), 83.8 / 57.3 / 2.10 % -> 83.3 / 56.4 / 2.01 % (photographs); 25 or 300 did worse:
+    the gait's fast leg swings are real accelerations."""
 
     silhouette_vertices: int = 600
     """Mesh vertices (an even subsample) tested against the mask."""
