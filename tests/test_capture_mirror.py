@@ -71,9 +71,8 @@ def traded(detection: Detection, parts: tuple[str, ...] | None, mirror_depth: bo
     names = LANDMARK_NAMES if parts is None else {f"{side}_{part}" for part in parts for side in ("left", "right")}
     order = [LANDMARK_NAMES.index(other_side(name)) if name in names else i for i, name in enumerate(LANDMARK_NAMES)]
     world = detection.landmarks_3d[order] * ([1, 1, -1] if mirror_depth else 1)
-    return Detection(
-        detection.landmarks_2d[order], detection.confidence[order], world.astype(np.float32), detection.mask, detection.box
-    )
+    marks = (detection.landmarks_2d[order], detection.confidence[order], world.astype(np.float32))
+    return Detection(*marks, detection.mask, detection.box)
 
 
 def assert_same_landmarks(a: Detection, b: Detection) -> None:

@@ -128,7 +128,10 @@ def _jump_2d(a: np.ndarray, b: np.ndarray, weight: np.ndarray, indices: list[int
 
 
 def left_right_axis(world: np.ndarray) -> np.ndarray:
-    """(..., 2) unit ground-plane (x, z) direction from the right to the left torso landmarks of (..., 33, 3) world landmarks."""
+    """(..., 2) unit ground-plane (x, z) direction from the right to the left torso landmarks.
+
+    ``world``: (..., 33, 3) world landmarks.
+    """
     left = [pair[0] for pair in TORSO_PAIRS]
     right = [pair[1] for pair in TORSO_PAIRS]
     d = (world[..., left, :] - world[..., right, :]).sum(-2)[..., [0, 2]]
