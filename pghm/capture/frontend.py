@@ -26,6 +26,11 @@ person's visible landmarks are kept.
 Two passes use this (:mod:`pghm.capture.pipeline`): :func:`track_person` on frames scaled
 small (boxes only), then a new :class:`PersonFinder` on the subject's cropped images,
 seeded with each frame's box, for the masks and landmarks at the subject's resolution.
+
+Mirrored pass (flip test-time augmentation, pass 2): MediaPipe also sees each frame mirrored
+left-right; its landmarks, mirrored back (:func:`unmirror`), are averaged with the found
+person's by confidence (:func:`fuse_mirrored`), which cuts the landmarks' error a little
+(docs/capture.md).
 """
 
 from __future__ import annotations
