@@ -173,9 +173,11 @@ class PoseEstimator:
             the detector runs only when the person is lost. Feed it whole frames of one
             video in order (its regions are in image coordinates). Otherwise static-image
             mode: detector then landmarks on every call, for squares that move between calls.
+        smooth: in video mode, MediaPipe's own temporal filter of the landmarks (its
+            default). It lags behind fast limbs; the body fit smooths over time itself.
     """
 
-    def __init__(self, video: bool = False) -> None:
+    def __init__(self, video: bool = False, smooth: bool = True) -> None:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # protobuf deprecation warnings at import
@@ -185,6 +187,7 @@ class PoseEstimator:
         self._pose = pose.Pose(
             static_image_mode=not video,
             model_complexity=MODEL_COMPLEXITY,
+            smooth_landmarks=smooth,
             enable_segmentation=True,
             min_detection_confidence=MIN_DETECTION_CONFIDENCE,
             min_tracking_confidence=MIN_DETECTION_CONFIDENCE,
@@ -310,13 +313,14 @@ class PersonFinder:
     over clutter), and one in static-image mode for the squares around the previous box and
     the windows searched to start a track. With ``mirrored``, a third (video mode) sees each
     frame mirrored left-right, and its landmarks, mirrored back, are fused with the found
-    person's (:func:`fuse_mirrored`: flip test-time augmentation).
+    person's (:func:`fuse_mirrored`: flip test-time augmentation). ``smooth``: MediaPipe's
+    temporal filter of the video-mode landmarks (:class:`PoseEstimator`).
     """
 
-    def __init__(self, mirrored: bool = False) -> None:
-        self.video = PoseEstimator(video=True)
+    def __init__(self, mirrored: bool = False, smooth: bool = True) -> None:
+        self.video = PoseEstimator(video=True, smooth=smooth)
         self.still = PoseEstimator(video=False)
-        self.mirror = PoseEstimator(video=True) if mirrored else None
+        self.mirror = PoseEstimator(video=True, smooth=smooth) if mirrored else None
 
     def close(self) -> None:
         self.video.close()
