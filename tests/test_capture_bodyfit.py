@@ -142,3 +142,28 @@ def test_bad_observations_name_the_problem() -> None:
     observations.frame_box = np.array([10.0, 0.0, 5.0, 100.0], np.float32)  # x1 < x0
     with pytest.raises(PghmError, match="frame_box"):
         fit_body(observations)
+
+
+@pytest.mark.parametrize("step", [1, 3, 4])
+def test_mask_map_is_read_where_its_pixels_are(step: int) -> None:
+    """A map keeping every step-th pixel of a (H, W) image is read, at a full-size pixel centre
+    (x + 1/2, y + 1/2) with x, y multiples of step, exactly at the map pixel holding that pixel;
+    half-way between two kept pixels it reads their mean (bilinear)."""
+    from pghm.capture.bodyfit import _map_grid
+
+    height, width = 37, 53
+    full = torch.arange(height * width, dtype=torch.float32).reshape(height, width)
+    kept = full[::step, ::step]
+    ys, xs = torch.meshgrid(torch.arange(kept.shape[0]), torch.arange(kept.shape[1]), indexing="ij")
+    centres = torch.stack([xs * step + 0.5, ys * step + 0.5], -1).reshape(1, -1, 2).float()
+
+    def read(pixels: torch.Tensor) -> torch.Tensor:
+        grid = _map_grid(pixels, step, tuple(kept.shape))
+        return torch.nn.functional.grid_sample(kept[None, None], grid[:, None], align_corners=False)[0, 0, 0]
+
+    torch.testing.assert_close(read(centres), kept.reshape(-1), rtol=0, atol=1e-2)
+    if step > 1:
+        between = centres[:, :-1] + torch.tensor([step / 2, 0.0])
+        inner = (xs < kept.shape[1] - 1).reshape(-1)[:-1]
+        expected = 0.5 * (kept.reshape(-1)[:-1] + kept.reshape(-1)[1:])
+        torch.testing.assert_close(read(between)[inner], expected[inner], rtol=0, atol=1e-2)

@@ -150,3 +150,16 @@ def test_interrupted_capture_leaves_nothing(tmp_path, monkeypatch):
     code = main(["capture", str(video), "--out", str(tmp_path / "out" / "me"), "--quiet"])
     assert code == 130
     assert list((tmp_path / "out").iterdir()) == []
+
+
+@pytest.mark.parametrize(("options", "mirror_pass"), [((), True), (("--no-mirror-pass",), False)])
+def test_no_mirror_pass_reaches_the_config(tmp_path, capsys, monkeypatch, options, mirror_pass):
+    """The front end's mirrored pass is on by default; --no-mirror-pass turns it off."""
+    import pghm.capture.pipeline
+
+    seen = []
+    monkeypatch.setattr(pghm.capture.pipeline, "capture", lambda input, out, config: seen.append(config) or out)
+    video = tmp_path / "clip.mp4"
+    video.write_bytes(b"")  # never read: capture is replaced
+    code, _ = run_capture(tmp_path, capsys, video, *options)
+    assert code == 0 and len(seen) == 1 and seen[0].mirror_pass is mirror_pass

@@ -115,8 +115,10 @@ class BodyFitConfig:
     fit_focal: bool = True
     """Refine the focal length when the intrinsics are unknown."""
 
-    steps: tuple[int, int, int] = (60, 200, 100)
-    """Adam steps of the three stages (camera/root, pose, shape + silhouette)."""
+    steps: tuple[int, int, int] = (60, 200, 300)
+    """Adam steps of the three stages (camera/root, pose, shape + silhouette). The silhouette
+    stage sees ``silhouette_frames`` frames a step, so each frame of a 100-frame video is
+    aligned to its mask about 100 times."""
 
     learning_rate: float = 0.03
     """Adam step for rotations (radians) and the shape logits; translation uses a tenth."""
@@ -130,9 +132,9 @@ class BodyFitConfig:
     weight_2d: float = 1.0
     weight_3d: float = 0.5
     huber_3d_m: float = 0.05
-    weight_outside: float = 1.0
-    weight_coverage: float = 0.3
-    weight_smooth: float = 100.0
+    weight_outside: float = 30.0
+    weight_coverage: float = 10.0
+    weight_smooth: float = 50.0
     weight_pose: float = 0.002
     weight_limits: float = 1.0
     weight_focal: float = 0.1
@@ -145,15 +147,21 @@ class BodyFitConfig:
     depth above all) where its 2D landmarks are 2-3 % of the height off: on capture-bench's
     48-frame videos 2 -> 0.5 took the 2D error from 1.82 to 1.74 % (plain) and 2.55 to
     2.41 % (photographs), PA-MPJPE from 60.4 to 58.7 mm over photographs; 0.25 or 6 did
-    not do better."""
+    not do better. The mask terms are strong (30 and 10, from 1 and 0.3) so that the body's
+    outline, not the landmarks' bias, places it: on capture-bench's seed 0-1 videos (front end
+    cached) the body mesh's silhouette IoU against the true masks rose by 0.02-0.03 and the 2D
+    error fell by 0.1-0.2 % of the height; 300 and 100 did no better. weight_smooth 100 -> 50 (with the front end's mirrored pass, 100-frame
+    videos, seeds 0-2): MPJPE / PA-MPJPE / 2D 75.6 / 49.1 / 1.70 % -> 74.7 / 47.5 / 1.57 %
+    (plain), 83.8 / 57.3 / 2.10 % -> 83.3 / 56.4 / 2.01 % (photographs); 25 or 300 did worse:
+    the gait's fast leg swings are real accelerations."""
 
-    silhouette_vertices: int = 600
+    silhouette_vertices: int = 1000
     """Mesh vertices (an even subsample) tested against the mask."""
 
-    coverage_samples: int = 64
+    coverage_samples: int = 128
     """Mask pixels per frame that the body should cover."""
 
-    silhouette_frames: int = 16
+    silhouette_frames: int = 32
     """Frames (drawn at random each step) on which the mask terms are evaluated: the shape
     they mostly inform is shared, and their cost stays independent of the video's length."""
 
@@ -250,6 +258,7 @@ class _Frames:
     world3d: Tensor  # (F, L, 3) MediaPipe world landmarks in the fit's world axes, hip-centred
     height_px: float  # the person's height in pixels (loss normaliser)
     outside: Tensor  # (F, 1, h, w) distance (in full-size pixels) to the mask, zero inside
+    mask_step: int  # full-size pixels per distance-map pixel: map pixel k is full-size pixel step k
     inside: Tensor  # (F, M, 2) pixels sampled inside each mask (full-size pixel coordinates)
     inside_valid: Tensor  # (F, M) whether the frame had mask pixels to sample
     gaps: Tensor  # (F - 1,) source-frame gaps between consecutive kept frames
@@ -313,7 +322,7 @@ def _prepare(observations: Observations, config: BodyFitConfig, rng: np.random.G
         rows, cols = np.nonzero(m)
         if len(rows):
             pick = rng.integers(0, len(rows), config.coverage_samples)
-            inside[f] = np.stack([cols[pick], rows[pick]], 1) * step + step / 2
+            inside[f] = np.stack([cols[pick], rows[pick]], 1) * step + 0.5  # the sampled pixel's centre
             inside_valid[f] = True
     frame_index = np.asarray(observations.frame_index, np.float64)
     gaps = np.maximum(np.diff(frame_index), 1.0) if len(frame_index) > 1 else np.ones(0)
@@ -323,6 +332,7 @@ def _prepare(observations: Observations, config: BodyFitConfig, rng: np.random.G
         world3d,
         height_px,
         torch.as_tensor(outside, dtype=torch.float32)[:, None],
+        step,
         torch.as_tensor(inside),
         torch.as_tensor(inside_valid),
         torch.as_tensor(gaps, dtype=torch.float32),
@@ -365,6 +375,18 @@ class _ShapeModel:
 
 def _geman_mcclure(squared: Tensor, sigma: float) -> Tensor:
     return squared / (squared + sigma**2)
+
+
+def _map_grid(pixels: Tensor, step: int, size: tuple[int, int]) -> Tensor:
+    """(..., 2) ``grid_sample`` coordinates (align_corners=False) of full-size pixel positions
+    (centres at half-integers) in a map that keeps every ``step``-th pixel, (h, w) = ``size``.
+
+    Map pixel k is full-size pixel step k, centred at step k + 1/2: index x_s = (x - 1/2) / step,
+    and grid_sample reads index x_s at x_n = (2 x_s + 1) / w - 1.
+    """
+    index = (pixels - 0.5) / step
+    extent = torch.tensor([size[1], size[0]], dtype=pixels.dtype)
+    return (2 * index + 1) / extent - 1
 
 
 def _project(points: Tensor, focal: Tensor, centre: Tensor, camera: Tensor) -> Tensor:
@@ -506,9 +528,7 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
         if stage > 1:
             terms["shape"] = config.weight_shape * ((shape - shape0) ** 2).sum()
             vpix = _project(verts, focal, centre, camera)
-            h, w = data.outside.shape[-2:]
-            cell = max(height, width) / max(h, w)  # full-size pixels per distance-map pixel
-            grid = torch.stack([vpix[..., 0] / (cell * w), vpix[..., 1] / (cell * h)], -1) * 2 - 1
+            grid = _map_grid(vpix, data.mask_step, data.outside.shape[-2:])
             outside = torch.nn.functional.grid_sample(
                 data.outside[subset], grid[:, None], align_corners=False, padding_mode="border"
             )

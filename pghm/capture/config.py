@@ -72,6 +72,11 @@ class CaptureConfig:
     min_frames: int = MIN_FRAMES
     """See :data:`MIN_FRAMES`."""
 
+    mirror_pass: bool = True
+    """Also run the landmark model on each frame mirrored left-right and fuse its landmarks,
+    mirrored back, with the original's (flip test-time augmentation,
+    :func:`pghm.capture.frontend.fuse_mirrored`; pass 2 only, one more MediaPipe call a frame)."""
+
     progress: bool = True
     """A tqdm bar per stage on stderr."""
 

@@ -26,6 +26,11 @@ person's visible landmarks are kept.
 Two passes use this (:mod:`pghm.capture.pipeline`): :func:`track_person` on frames scaled
 small (boxes only), then a new :class:`PersonFinder` on the subject's cropped images,
 seeded with each frame's box, for the masks and landmarks at the subject's resolution.
+
+Mirrored pass (flip test-time augmentation, pass 2): MediaPipe also sees each frame mirrored
+left-right; its landmarks, mirrored back (:func:`unmirror`), are averaged with the found
+person's by confidence (:func:`fuse_mirrored`), which cuts the landmarks' error a little
+(docs/capture.md).
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pghm.capture.swaps import ARM_PAIRS, BODY_PAIRS, LEG_PAIRS, Landmarks, left_right_axis, permutation, traded
 from pghm.errors import PghmError
 
 NUM_LANDMARKS = 33
@@ -64,6 +70,11 @@ MAX_SHIFT = 0.5
 
 MAX_SCALE_CHANGE = 1.6
 """...and its box diagonal changed by at most this factor (per frame; both loosen with frames lost)."""
+
+MIRROR_AGREEMENT = 0.1
+"""The mirrored pass's landmarks are fused only if their median 2D distance to the original's,
+after aligning the limbs' labels, is at most this fraction of the person's box diagonal
+(otherwise it followed something else, or the body's labels disagree: the original stands)."""
 
 LOST_RESET = 30
 """Frames without the person after which the track is dropped and the largest person found starts a new one."""
@@ -162,9 +173,11 @@ class PoseEstimator:
             the detector runs only when the person is lost. Feed it whole frames of one
             video in order (its regions are in image coordinates). Otherwise static-image
             mode: detector then landmarks on every call, for squares that move between calls.
+        smooth: in video mode, MediaPipe's own temporal filter of the landmarks (its
+            default). It lags behind fast limbs; the body fit smooths over time itself.
     """
 
-    def __init__(self, video: bool = False) -> None:
+    def __init__(self, video: bool = False, smooth: bool = True) -> None:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # protobuf deprecation warnings at import
@@ -174,6 +187,7 @@ class PoseEstimator:
         self._pose = pose.Pose(
             static_image_mode=not video,
             model_complexity=MODEL_COMPLEXITY,
+            smooth_landmarks=smooth,
             enable_segmentation=True,
             min_detection_confidence=MIN_DETECTION_CONFIDENCE,
             min_tracking_confidence=MIN_DETECTION_CONFIDENCE,
@@ -297,16 +311,22 @@ class PersonFinder:
     Holds two MediaPipe instances: one in video mode fed every whole frame (it follows the
     person through frames its detector alone misses, such as a back turned to the camera
     over clutter), and one in static-image mode for the squares around the previous box and
-    the windows searched to start a track.
+    the windows searched to start a track. With ``mirrored``, a third (video mode) sees each
+    frame mirrored left-right, and its landmarks, mirrored back, are fused with the found
+    person's (:func:`fuse_mirrored`: flip test-time augmentation). ``smooth``: MediaPipe's
+    temporal filter of the video-mode landmarks (:class:`PoseEstimator`).
     """
 
-    def __init__(self) -> None:
-        self.video = PoseEstimator(video=True)
+    def __init__(self, mirrored: bool = False, smooth: bool = True) -> None:
+        self.video = PoseEstimator(video=True, smooth=smooth)
         self.still = PoseEstimator(video=False)
+        self.mirror = PoseEstimator(video=True, smooth=smooth) if mirrored else None
 
     def close(self) -> None:
         self.video.close()
         self.still.close()
+        if self.mirror is not None:
+            self.mirror.close()
 
     def __enter__(self) -> PersonFinder:
         return self
@@ -321,6 +341,15 @@ class PersonFinder:
         detection counts only if :func:`consistent` with the track. Without: video mode on
         the whole frame and three windows, the largest person found (see the module docstring).
         """
+        found = self._find(image, previous, frames_lost)
+        if self.mirror is None:
+            return found
+        mirrored = self.mirror(np.ascontiguousarray(image[:, ::-1]))  # fed every frame: its track stays alive
+        if found is None or mirrored is None:
+            return found
+        return fuse_mirrored(found, unmirror(mirrored, image.shape[1]))
+
+    def _find(self, image: np.ndarray, previous: Box | None, frames_lost: int) -> Detection | None:
         followed = self.video(image)
         if previous is not None:
             if followed is not None and consistent(followed.box, previous, frames_lost):
@@ -331,6 +360,71 @@ class PersonFinder:
         candidates = [followed, *(self.still(image, window) for window in _windows(width, height))]
         candidates = [c for c in candidates if c is not None]
         return max(candidates, key=lambda c: _area(c.box)) if candidates else None
+
+
+MIRROR_ORDER = permutation(BODY_PAIRS)
+"""(33,) landmark index -> the index of its mirror image (left <-> right; the nose stays)."""
+
+
+def unmirror(detection: Detection, width: int) -> Detection:
+    """A detection made on an image mirrored left-right (width ``width``), as seen in the original image.
+
+    Mirroring maps pixel x to W - x (pixel centres at half-integers, so column j goes to
+    W - 1 - j), makes the person's left side look like a right side, and negates the
+    camera-aligned x of the world landmarks. Undone: x -> W - x, every left/right pair
+    traded (:data:`MIRROR_ORDER`), world x negated, the mask mirrored back.
+    """
+    points = detection.landmarks_2d[MIRROR_ORDER].copy()
+    points[:, 0] = width - points[:, 0]
+    world = detection.landmarks_3d[MIRROR_ORDER].copy()
+    world[:, 0] *= -1
+    box = np.array([width - detection.box[2], detection.box[1], width - detection.box[0], detection.box[3]])
+    return Detection(points, detection.confidence[MIRROR_ORDER].copy(), world, detection.mask[:, ::-1].copy(), box)
+
+
+def _traded(detection: Detection, pairs: list[tuple[int, int]], mirror_depth: bool = False) -> Detection:
+    """``detection`` with ``pairs`` trading labels (:func:`pghm.capture.swaps.traded`)."""
+    one = Landmarks(detection.landmarks_2d[None], detection.confidence[None], detection.landmarks_3d[None])
+    marks = traded(one, pairs, mirror_depth)
+    return Detection(marks.points[0], marks.confidence[0], marks.world[0], detection.mask, detection.box)
+
+
+def _median_distance(a: Detection, b: Detection, indices: list[int]) -> float:
+    return float(np.median(np.linalg.norm(a.landmarks_2d[indices] - b.landmarks_2d[indices], axis=-1)))
+
+
+def fuse_mirrored(found: Detection, mirrored: Detection) -> Detection:
+    """The landmarks of ``found`` averaged with those of ``mirrored`` (already mirrored back), by confidence.
+
+    The mirrored pass labels the body on its own, so its labels are first aligned with
+    ``found``'s (the body fit's swap repair then decides the labelling over time): the whole
+    body traded, depth mirrored, when its world landmarks' left-right axis points against
+    ``found``'s (:func:`pghm.capture.swaps.left_right_axis`); then per pair of limbs (legs,
+    arms) traded when that brings its 2D points closer to ``found``'s. If the two still disagree (median 2D distance
+    over :data:`MIRROR_AGREEMENT` of the box diagonal), ``found`` is returned unchanged.
+    Each landmark is then x = (c x + c' x') / (c + c'), likewise the world landmarks, with
+    confidence (c + c') / 2; the mask and box stay ``found``'s.
+    """
+    if (left_right_axis(found.landmarks_3d) * left_right_axis(mirrored.landmarks_3d)).sum() < 0:
+        mirrored = _traded(mirrored, BODY_PAIRS, mirror_depth=True)
+    for pairs in (LEG_PAIRS, ARM_PAIRS):
+        indices = [i for pair in pairs for i in pair]
+        other = _traded(mirrored, pairs)
+        if _median_distance(other, found, indices) < _median_distance(mirrored, found, indices):
+            mirrored = other
+    diagonal = float(np.hypot(*(found.box[2:] - found.box[:2])))
+    if _median_distance(mirrored, found, list(range(NUM_LANDMARKS))) > MIRROR_AGREEMENT * diagonal:
+        return found
+    c, c_m = found.confidence.astype(np.float64), mirrored.confidence.astype(np.float64)
+    total = c + c_m
+    share = np.divide(c, total, out=np.full_like(total, 0.5), where=total > 0)[:, None]
+    return Detection(
+        (share * found.landmarks_2d + (1 - share) * mirrored.landmarks_2d).astype(np.float32),
+        (total / 2).astype(np.float32),
+        (share * found.landmarks_3d + (1 - share) * mirrored.landmarks_3d).astype(np.float32),
+        found.mask,
+        found.box,
+    )
 
 
 @dataclass

@@ -38,6 +38,10 @@ from pghm.data.subject import SubjectArrays, write_image, write_subject
 from pghm.errors import PghmError, listed
 from pghm.io.outputs import check_output, staged_folder
 
+SMOOTH_LANDMARKS = False
+"""MediaPipe's temporal filter of the landmarks in pass 2 (pass 1, which only tracks, keeps it):
+off, the landmarks follow fast limbs; the body fit smooths over time itself."""
+
 TRACKING_SIZE = 512
 """Longest side of the frames the person is tracked on (pass 1), pixels."""
 
@@ -117,7 +121,7 @@ def _observe(
     last = int(track.frame_index[-1])
     frames = source.frames(region, out_size, config.every, config.max_frames)
     with (
-        PersonFinder() as find,
+        PersonFinder(mirrored=config.mirror_pass, smooth=SMOOTH_LANDMARKS) as find,
         _bar(config, count, "masks, landmarks") as bar,
     ):
         for index, image in frames:

@@ -90,7 +90,9 @@ def permutation(pairs: list[tuple[int, int]]) -> np.ndarray:
     return order
 
 
-def _swapped(marks: Landmarks, pairs: list[tuple[int, int]], mirror_depth: bool) -> Landmarks:
+def traded(marks: Landmarks, pairs: list[tuple[int, int]], mirror_depth: bool) -> Landmarks:
+    """``marks`` with ``pairs`` trading labels (new arrays); with ``mirror_depth`` world z -> -z as well
+    (the whole body mirrored, module docstring)."""
     order = permutation(pairs)
     world = marks.world[:, order].copy()
     if mirror_depth:
@@ -125,23 +127,27 @@ def _jump_2d(a: np.ndarray, b: np.ndarray, weight: np.ndarray, indices: list[int
     return (w * distance).sum(1) / np.maximum(w.sum(1), 1e-6) / (MOTION_SCALE * height)
 
 
-def _axis_turn(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(F - 1,) 1 - cos of the angle between the ground-plane left-right axes of world landmarks a[f - 1], b[f]."""
+def left_right_axis(world: np.ndarray) -> np.ndarray:
+    """(..., 2) unit ground-plane (x, z) direction from the right to the left torso landmarks.
+
+    ``world``: (..., 33, 3) world landmarks.
+    """
     left = [pair[0] for pair in TORSO_PAIRS]
     right = [pair[1] for pair in TORSO_PAIRS]
+    d = (world[..., left, :] - world[..., right, :]).sum(-2)[..., [0, 2]]
+    return d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-6)
 
-    def axis(world: np.ndarray) -> np.ndarray:
-        d = (world[:, left] - world[:, right]).sum(1)[:, [0, 2]]
-        return d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-6)
 
-    return 1.0 - (axis(a)[:-1] * axis(b)[1:]).sum(-1)
+def _axis_turn(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(F - 1,) 1 - cos of the angle between the ground-plane left-right axes of world landmarks a[f - 1], b[f]."""
+    return 1.0 - (left_right_axis(a)[:-1] * left_right_axis(b)[1:]).sum(-1)
 
 
 def _decide(
     marks: Landmarks, pairs: list[tuple[int, int]], mirror_depth: bool, height: float, gaps: np.ndarray
 ) -> tuple[Landmarks, np.ndarray]:
     """Relabel the frames where trading ``pairs`` gives the cheaper path; the new landmarks and (F,) flags."""
-    swapped = _swapped(marks, pairs, mirror_depth)
+    swapped = traded(marks, pairs, mirror_depth)
     states = (marks, swapped)
     indices = [i for pair in (TORSO_PAIRS if mirror_depth else pairs) for i in pair]
     hips = [i for pair in _pairs(("hip",)) for i in pair]

@@ -1,7 +1,7 @@
 """``pghm capture``: a video of a person becomes a subject folder (docs/capture.md).
 
     pghm capture INPUT --out SUBJECT [--every N] [--max-frames N] [--size PX]
-                 [--fov DEG | --focal PX] [--test-every N] [--quiet]
+                 [--fov DEG | --focal PX] [--test-every N] [--no-mirror-pass] [--quiet]
 
 INPUT is a video file (mp4, mov, webm, avi, anything ffmpeg reads) or a folder of images.
 Needs the ``capture`` extra (mediapipe): ``pip install 'pghm[capture]'``.
@@ -34,6 +34,7 @@ def _capture(args: argparse.Namespace) -> int:
         fov_deg=args.fov,
         focal_px=args.focal,
         test_every=args.test_every,
+        mirror_pass=not args.no_mirror_pass,
         progress=not args.quiet,
     )
     out = capture(args.input, args.out, config)
@@ -80,6 +81,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=Integer(2, MAX_INDEX),
         default=DEFAULT_TEST_EVERY,
         help=f"every N-th kept frame goes to the test split (default {DEFAULT_TEST_EVERY})",
+    )
+    parser.add_argument(
+        "--no-mirror-pass",
+        action="store_true",
+        help="skip the landmark model's second pass on the mirrored frames (a faster front end, less accurate joints)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.set_defaults(func=_capture)
