@@ -152,8 +152,9 @@ class BodyFitConfig:
     cached) the body mesh's silhouette IoU against the true masks rose by 0.02-0.03 and the 2D
     error fell by 0.1-0.2 % of the height; 300 and 100 did no better (docs/capture.md).
     weight_smooth 100 -> 50 (with the front end's mirrored pass, 100-frame videos, seeds 0-2):
-    MPJPE / PA-MPJPE / 2D 75.6 / 49.1 / 1.70 % -> 74.7 / 47.5 / 1.57 % (plain), 83.8 / 57.3 / 2.10 % -> 83.3 / 56.4 / 2.01 % (photographs); 25 or 300 did worse:
-    the gait's fast leg swings are real accelerations."""
+    MPJPE / PA-MPJPE / 2D 75.6 / 49.1 / 1.70 % -> 74.7 / 47.5 / 1.57 % (plain), 83.8 / 57.3 /
+    2.10 % -> 83.3 / 56.4 / 2.01 % (photographs); 25 or 300 did worse: the gait's fast leg
+    swings are real accelerations."""
 
     silhouette_vertices: int = 1000
     """Mesh vertices (an even subsample) tested against the mask."""
