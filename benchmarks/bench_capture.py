@@ -547,9 +547,14 @@ def report(
             "verdicts": passed,
             "load_before": load,
             "load_after": load_average(),
-            "command": " ".join(["python", "benchmarks/bench_capture.py", *sys.argv[1:]]),
+            "command": " ".join(["python", "benchmarks/bench_capture.py", *shown_arguments(sys.argv[1:])]),
         },
     )
+
+
+def shown_arguments(argv: list[str]) -> list[str]:
+    """The command line as a report records it: the --keep folder (a path of this machine) as DIR."""
+    return ["DIR" if previous == "--keep" else argument for previous, argument in zip(["", *argv], argv)]
 
 
 def figure_name(results: str) -> str:
