@@ -386,3 +386,18 @@ def test_playing_a_clip_after_one_pass_draws_cached_frames_only(model_pipeline):
         assert drawn_frame(status) == frame and status.shown.state == (clip.key, frame)
         assert status.moving
     assert len(model.frames) == evaluated, "no model work while playing a cached clip"
+
+
+def test_still_frames_only_lower_the_resolution_controller_scale():
+    """A still frame's estimate (full scale, over budget) caps the moving scale but never raises it."""
+    settings = ResolutionSettings(draw_budget_ms=5.0, min_scale=0.25)
+    controller = ResolutionController(settings)
+    assert controller.update(1.0, 80.0, moving=False) == pytest.approx(0.25)  # sqrt(5 / 80): the cap
+    controller = ResolutionController(settings)
+    first = controller.update(1.0, 20.0, moving=False)
+    assert first == pytest.approx(0.5)  # sqrt(5 / 20), no smoothing towards the initial 1.0
+    for _ in range(10):  # moving frames with a fixed cost: at the least scale still over budget
+        scale = controller.update(controller.scale, 20.0)
+    assert scale == pytest.approx(0.25)
+    assert controller.update(1.0, 20.0, moving=False) == pytest.approx(0.25)  # the still frame does not raise it
+    assert controller.update(0.25, 1.0) > 0.25  # a fast moving frame does

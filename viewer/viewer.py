@@ -364,7 +364,8 @@ class Viewer:
                 hud.upload_ms = self._cache.set_gaussians_ms + timings.upload_ms
                 self._cache.set_gaussians_ms = 0.0
                 self._cache.scene_key = scene_key
-                self.resolution.update(scale, timings.draw_ms)  # still frames too: the first move starts right
+                # Still frames too, lowering only: the first move starts at most where they say.
+                self.resolution.update(scale, timings.draw_ms, moving=status.moving)
             else:
                 self.renderer.present(display.background, target=screen, viewport=viewport, cleared=True)
         if display.show_mesh:
