@@ -42,14 +42,14 @@ from viewer.prefetch import ClipPlan, ClipPrefetcher
 from viewer.scene import Evaluated, SceneRequest, SceneSnapshot, evaluate_request
 from viewer.worker import LatestRequestWorker, Superseded
 
-COLOUR_REFRESH_DEGREES = 45.0
+COLOUR_REFRESH_DEGREES = 20.0
 """While the view moves, view-dependent colour is re-evaluated (in the worker) each time the view
 has turned this far from the view it was last made for; otherwise once the view is still. Each
-refresh runs the network on both cores while llvmpipe rasterises the moving frames: on a quiet
-machine with the moving frames culled, orbit p95 was 18.0 / 17.0 ms at 20 degrees, 15.1 / 15.6 /
-16.9 at 45 and 14.5 / 16.1 / 16.0 with no refresh while moving (benchmarks/bench_viewer.py). The
-colour 45 degrees behind is 7.0e-3 mean RGB off (20: 2.9e-3), a moving frame's other trades 3.4e-3,
-and the settled frame is exact whatever the angle."""
+refresh runs the network on both cores while llvmpipe rasterises the moving frames, yet with the
+moving frames culled and each orbit starting at the moving scale (docs/viewer.md) the quiet orbit
+p95 was 14.0 / 14.0 ms at 20 degrees, 13.5 / 14.3 at 30 and 14.3 / 13.2 / 12.9 at 45: no reason to
+show the colour of a view further behind (45 degrees behind: 7.0e-3 mean RGB off and a back
+washed out with front-view colour; 20: 2.9e-3). The settled frame is exact whatever the angle."""
 ORDER_REFRESH_DEGREES = 10.0
 """While the view moves, the sprites keep the depth order of a view until the view has turned this
 far from it (benchmarks/bench_viewer.py measures the error: 10 degrees behind, mean 4e-4 RGB on the
