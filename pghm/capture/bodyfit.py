@@ -445,7 +445,6 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
     hips = [BODY_LANDMARKS.index(LANDMARK_NAMES.index(name)) for name in HIPS]
     torso = [BODY_LANDMARKS.index(LANDMARK_NAMES.index(name)) for name in TORSO]
 
-    height, width = observations.image_size
     camera = torch.eye(4)
     camera[:3, :3] = torch.as_tensor(CAMERA_LOOK, dtype=torch.float32)
     if observations.K is not None:

@@ -151,6 +151,9 @@ def _decide(
     states = (marks, swapped)
     indices = [i for pair in (TORSO_PAIRS if mirror_depth else pairs) for i in pair]
     hips = [i for pair in _pairs(("hip",)) for i in pair]
+    limbs = [i for pair in pairs for i in pair]
+    # (F, L, 3) hip-relative world landmarks of the limbs, per labelling (limb pairs only).
+    relative = [m.world[:, limbs] - m.world[:, hips].mean(1, keepdims=True) for m in states]
     pairwise = np.zeros((len(gaps), 2, 2))
     for s, previous in enumerate(states):
         for t, current in enumerate(states):
@@ -158,17 +161,14 @@ def _decide(
             if mirror_depth:
                 cost = cost + _axis_turn(previous.world, current.world)
             else:
-                limbs = [i for pair in pairs for i in pair]
-                rel_a = previous.world[:-1, limbs] - previous.world[:-1, hips].mean(1, keepdims=True)
-                rel_b = current.world[1:, limbs] - current.world[1:, hips].mean(1, keepdims=True)
-                cost = cost + np.linalg.norm(rel_b - rel_a, axis=-1).mean(1) / METRIC_SCALE
+                cost = cost + np.linalg.norm(relative[t][1:] - relative[s][:-1], axis=-1).mean(1) / METRIC_SCALE
             pairwise[:, s, t] = cost / gaps
     unary = np.zeros((len(gaps) + 1, 2))
     unary[:, 1] = SWAP_COST
     flags = viterbi(unary, pairwise).astype(bool)
 
-    def pick(observed: np.ndarray, traded: np.ndarray) -> np.ndarray:
-        return np.where(flags.reshape(-1, *[1] * (observed.ndim - 1)), traded, observed)
+    def pick(observed: np.ndarray, relabelled: np.ndarray) -> np.ndarray:
+        return np.where(flags.reshape(-1, *[1] * (observed.ndim - 1)), relabelled, observed)
 
     out = Landmarks(
         pick(marks.points, swapped.points), pick(marks.confidence, swapped.confidence), pick(marks.world, swapped.world)

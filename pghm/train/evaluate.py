@@ -176,7 +176,7 @@ def evaluate(
     corrections, refine_seconds = None, 0.0
     if refine_poses > 0:
         started = time.perf_counter()
-        corrections = refine_test_poses(avatar, data, refine_poses, body_model_path)
+        corrections = refine_test_poses(avatar, data, refine_poses, body_model_path, images=indices)
         refine_seconds = time.perf_counter() - started
     strip_at = set(indices[:: max(1, len(indices) // STRIP_FRAMES)][:STRIP_FRAMES])
     result = EvalResult([], [], [] if lpips is not None else None, [], background=background)

@@ -47,11 +47,13 @@ def refine_test_poses(
     body_model_path: str | None = None,
     seed: int = 0,
     progress: bool = True,
+    images: list[int] | None = None,
 ) -> PoseCorrections:
     """Pose corrections of the frames of ``data`` (one subject, typically its test split) fitted
     to their images for ``steps`` Adam steps, ``avatar`` frozen.
 
-    Returns corrections indexed by :attr:`Sample.frame_key`; frames outside ``data`` keep zero rows.
+    ``images``: only these image indices of ``data`` (None: all of them). Returns corrections
+    indexed by :attr:`Sample.frame_key`; the other frames keep zero rows.
     """
     body = load_body(avatar.body_name, body_model_path)
     geometry = avatar_geometry(avatar, body_model_path=body_model_path)
@@ -63,13 +65,13 @@ def refine_test_poses(
         p.requires_grad_(False)
     objective = AvatarObjective(model, avatar.identity_map(), corrections, weights, lpips=None)
     optimizer = torch.optim.Adam(corrections.parameters(), lr=FitConfig().pose_lr)
-    images = [int(i) for i in data.images[0]]
-    batches = [images[k : k + IMAGES_PER_BATCH] for k in range(0, len(images), IMAGES_PER_BATCH)]
+    images = [int(i) for i in (data.images[0] if images is None else images)]
+    # Read once: every step renders the same images.
+    batches = [data.load_group(0, images[k : k + IMAGES_PER_BATCH]) for k in range(0, len(images), IMAGES_PER_BATCH)]
     try:
         for step in tqdm(range(steps), desc="refine test poses", disable=not progress, dynamic_ncols=True):
             optimizer.zero_grad(set_to_none=False)
-            for position, batch in enumerate(batches):
-                samples = data.load_group(0, batch)
+            for position, samples in enumerate(batches):
                 if not samples:
                     continue
                 height, width = samples[0].camera.height, samples[0].camera.width
