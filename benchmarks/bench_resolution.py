@@ -7,12 +7,14 @@ docs/results.md). The Gaussians live in 3D, so an avatar trained on smaller imag
 the same full-size frames as every other; the smaller training subject is the same person
 (``pghm synth --config mono`` with the same seed; only the image size changes).
 
-The shipped prior has one L (128): at that L a run fits from it (``--prior``), at any other L from
-scratch, and ``--scratch-everywhere`` fits every L from scratch so that the L columns compare
-like with like.
+The prior has one L (128); a fit at another L starts from it all the same: its networks are
+convolutional, so their weights carry over and only the identity bank is resampled
+(``pghm fit --uv-resolution``, :meth:`PGHM.at_resolution`). ``--scratch-everywhere`` fits every
+L from scratch instead. L is a power of two (the UV atlas halves it at every pyramid level).
+Each finished run is cached as JSON in ``--work``, so a stopped sweep resumes where it was.
 
     python benchmarks/bench_resolution.py --subject /path/mono1/subject_000 \\
-        --resolutions 128 192 256 --steps 250 500 1000 --scales 1.0 0.75 0.5
+        --resolutions 128 256 --steps 250 500 1000 --scales 1.0 0.5
 
 Prints the table, writes benchmarks/results/bench_resolution.json and docs/bench_resolution.png
 (PSNR against fit minutes, one line per L and image scale). Minutes are optimisation time on this
@@ -23,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import tempfile
 from pathlib import Path
 
@@ -30,7 +33,7 @@ from common import DOCS, load_average, print_table, setup_threads, write_json
 
 from pghm.data.synth.config import PRESETS
 from pghm.data.synth.generate import generate
-from pghm.io.avatar import load_avatar
+from pghm.io.avatar import avatar_geometry
 from pghm.model import ModelConfig
 from pghm.train.evaluate import evaluate
 from pghm.train.fit import FitConfig, fit
@@ -40,9 +43,10 @@ STAGE1_SHARE = 10
 SPLIT = "test_novel_pose"
 
 
-def budget(steps: int) -> FitConfig:
-    """The default fit configuration with ``steps`` in all, split between the stages as the default."""
-    config = FitConfig()
+def budget(steps: int, resolution: int) -> FitConfig:
+    """The default fit configuration at UV side ``resolution`` with ``steps`` in all, split
+    between the stages as the default."""
+    config = FitConfig(uv_resolution=resolution)
     first = steps // STAGE1_SHARE
     config.stage1 = dataclasses.replace(config.stage1, steps=first, checkpoint_every=0)
     config.stage2 = dataclasses.replace(config.stage2, steps=steps - first, checkpoint_every=0)
@@ -62,7 +66,6 @@ def training_subject(subject: Path, seed: int, scale: float, work: Path) -> Path
 
 
 def run(args: argparse.Namespace) -> list[dict]:
-    prior_l = load_avatar(args.prior).model.config.uv_resolution
     rows = []
     with tempfile.TemporaryDirectory() as scratch:
         work = Path(args.work) if args.work else Path(scratch)
@@ -70,26 +73,32 @@ def run(args: argparse.Namespace) -> list[dict]:
         for scale in args.scales:
             train_on = training_subject(Path(args.subject), args.seed, scale, work)
             for resolution in args.resolutions:
-                from_prior = resolution == prior_l and not args.scratch_everywhere
                 for steps in args.steps:
-                    out = work / f"L{resolution}_s{steps}_x{scale:g}.pt"
-                    source = args.prior if from_prior else ModelConfig(uv_resolution=resolution)
+                    origin = "scratch" if args.scratch_everywhere else "prior"
+                    name = f"L{resolution}_s{steps}_x{scale:g}_{origin}"
+                    cached = work / f"{name}.json"
+                    if cached.is_file():
+                        rows.append(json.loads(cached.read_text()))
+                        continue
+                    source = ModelConfig() if args.scratch_everywhere else args.prior
                     load = load_average()
-                    avatar = fit(train_on, source, out, budget(steps))
+                    avatar = fit(train_on, source, work / f"{name}.pt", budget(steps, resolution))
                     result = evaluate(avatar, args.subject, split=SPLIT, true_poses=True).summary()
-                    rows.append(
-                        {
-                            "L": resolution,
-                            "steps": steps,
-                            "image_scale": scale,
-                            "from": "prior" if from_prior else "scratch",
-                            "psnr": round(result["psnr"], 2),
-                            "ssim": round(result["ssim"], 4),
-                            "iou": round(result["iou"], 4),
-                            "minutes": round(avatar.metadata["seconds"] / 60, 2),
-                            "load": round(load, 1),
-                        }
-                    )
+                    row = {
+                        "L": resolution,
+                        "gaussians": avatar_geometry(avatar).num_gaussians,
+                        "steps": steps,
+                        "image_scale": scale,
+                        "from": origin,
+                        "psnr": round(result["psnr"], 2),
+                        "ssim": round(result["ssim"], 4),
+                        "iou": round(result["iou"], 4),
+                        "halo": round(result["halo_pixels"], 1),
+                        "minutes": round(avatar.metadata["seconds"] / 60, 2),
+                        "load": round(load, 1),
+                    }
+                    cached.write_text(json.dumps(row))
+                    rows.append(row)
                     print_table(rows)
     return rows
 
@@ -127,7 +136,7 @@ def main() -> None:
     parser.add_argument("--subject", required=True, help="the mono subject folder (pghm synth --config mono)")
     parser.add_argument("--seed", type=int, default=1, help="the synth seed that made --subject (default 1)")
     parser.add_argument("--prior", default="assets/prior.pt")
-    parser.add_argument("--resolutions", type=int, nargs="+", default=[128, 192, 256])
+    parser.add_argument("--resolutions", type=int, nargs="+", default=[128, 256])
     parser.add_argument("--steps", type=int, nargs="+", default=[250, 500, 1000])
     parser.add_argument("--scales", type=float, nargs="+", default=[1.0])
     parser.add_argument("--scratch-everywhere", action="store_true", help="fit every L from scratch")

@@ -255,3 +255,36 @@ def test_regulariser_is_the_l2_of_the_returned_offsets(body, geometry):
     )
     assert pose_offset.abs().max() > 1e-4 and out.regularizer > 0
     torch.testing.assert_close(out.regularizer, expected, rtol=1e-4, atol=0)
+
+
+def test_a_model_at_another_resolution_keeps_its_networks_and_resamples_its_bank():
+    model = PGHM(SMALL, num_identities=2)
+    randomize_heads(model)
+    size = SMALL.latent_resolution
+    centres = (torch.arange(size) + 0.5) / size
+    with torch.no_grad():  # identity 0: a ramp along the columns; identity 1: a constant
+        model.identity_bank[0] = 2.0 * centres - 1.0
+        model.identity_bank[1] = 0.3
+    bank_before = model.identity_bank.detach().clone()
+
+    finer = model.at_resolution(2 * SMALL.uv_resolution)
+
+    assert finer.config.uv_resolution == 2 * SMALL.uv_resolution
+    assert torch.equal(model.identity_bank, bank_before)  # the source model is untouched
+    weights, finer_weights = model.state_dict(), finer.state_dict()
+    for name, value in weights.items():
+        if name != "identity_bank":
+            assert torch.equal(finer_weights[name], value), name
+    bank = finer.identity_bank.detach()
+    assert bank.shape == (2, SMALL.latent_channels, 2 * size, 2 * size)
+    # Bilinear resampling reproduces a linear function exactly away from the outer half texel.
+    fine_centres = (torch.arange(2 * size) + 0.5) / (2 * size)
+    inner = slice(1, -1)
+    torch.testing.assert_close(bank[0, :, :, inner], (2.0 * fine_centres[inner] - 1.0).expand_as(bank[0, :, :, inner]))
+    torch.testing.assert_close(bank[1], torch.full_like(bank[1], 0.3))
+    # The same convolutions on a constant latent give the same identity map, far from the borders.
+    with torch.no_grad():
+        coarse_map, fine_map = model.decode_identity(1), finer.decode_identity(1)
+    assert fine_map.shape[-1] == 2 * coarse_map.shape[-1]
+    middle, fine_middle = coarse_map.shape[-1] // 2, fine_map.shape[-1] // 2
+    torch.testing.assert_close(fine_map[..., fine_middle, fine_middle], coarse_map[..., middle, middle])

@@ -99,6 +99,26 @@ def test_fit_stage1_changes_only_the_latent_stage2_also_the_unet(tiny_dataset, p
     assert not any(name.startswith(("identity_bank", "feature_decoder")) for name in changed)
 
 
+def test_fit_at_twice_the_priors_resolution_makes_an_avatar_at_that_resolution(tiny_dataset, prior_file, tmp_path):
+    from pghm.io.avatar import avatar_geometry, load_avatar
+
+    prior = load_avatar(prior_file)
+    finer = 2 * prior.model.config.uv_resolution
+    config = FitConfig(
+        stage1=LoopConfig(steps=1, images_per_shard=2, checkpoint_every=0),
+        stage2=LoopConfig(steps=1, images_per_shard=2, checkpoint_every=0),
+        uv_resolution=finer,
+        lpips=False,
+    )
+    fit(tiny_dataset / "subject_001", prior, tmp_path / "fine.pt", config)
+    avatar = load_avatar(tmp_path / "fine.pt")
+    assert avatar.model.config.uv_resolution == finer and avatar.latent.shape[-1] == finer
+    geometry, coarse = avatar_geometry(avatar), avatar_geometry(prior)
+    assert geometry.atlas.resolution == finer
+    assert 3.5 < geometry.num_gaussians / coarse.num_gaussians < 4.5  # a texel per Gaussian, 4x the texels
+    assert load_avatar(prior_file).model.config.uv_resolution == finer // 2  # the prior file is unchanged
+
+
 def test_resume_gives_the_same_parameters(tiny_dataset, tmp_path, monkeypatch):
     from pghm.train.data import TrainingData
 

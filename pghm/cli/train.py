@@ -137,6 +137,13 @@ def register(subparsers) -> None:
         default=fit_defaults.pose_smoothing,
         help="sigma in frames of the temporal filter on the estimated poses; 0: as stored (default %(default)s)",
     )
+    fit.add_argument(
+        "--uv-resolution",
+        type=Integer(MIN_RESOLUTION, MAX_RESOLUTION),
+        default=None,
+        help="L of the avatar's UV maps, a power of two; another L than the prior's carries its weights over "
+        "((L / L_prior)^2 times the Gaussians; default: the prior's)",
+    )
     _common(fit, fit_defaults.stage1)
     fit.set_defaults(func=run_fit)
 
@@ -222,6 +229,7 @@ def run_fit(args: argparse.Namespace) -> int:
         stage2=stages[1],
         refine_poses=not args.no_pose_refinement,
         pose_smoothing=args.pose_smoothing,
+        uv_resolution=args.uv_resolution,
         lpips=not args.no_lpips,
         body_model_path=args.body_model_path,
     )

@@ -33,9 +33,10 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from pghm.body.pose import BodyPose
@@ -209,6 +210,26 @@ class PGHM(nn.Module):
         super().train(mode)
         set_conv_layout(self, torch.contiguous_format if mode else torch.channels_last)
         return self
+
+    def at_resolution(self, uv_resolution: int) -> PGHM:
+        """This model with UV maps of side ``uv_resolution`` (a new model; this one is unchanged).
+
+        Every network is convolutional, so its weights carry over as they are; only the
+        identity bank (N, C, L', L') is resized, bilinearly, to the new L' = L / 2. A bank
+        latent therefore decodes to the same smooth identity map sampled more finely, and
+        there are (L_new / L)^2 times as many Gaussians, each a texel's size smaller. The
+        networks' receptive fields shrink by L / L_new measured on the body, which is why
+        a fit at another L than its prior's trains the networks too (stage 2 of ``pghm fit``).
+        """
+        config = replace(self.config, uv_resolution=uv_resolution)
+        model = PGHM(config, num_identities=self.num_identities)
+        weights = self.state_dict()
+        size = config.latent_resolution
+        weights["identity_bank"] = F.interpolate(
+            weights["identity_bank"], size=(size, size), mode="bilinear", align_corners=False
+        )
+        model.load_state_dict(weights)
+        return model.train(self.training)
 
     @property
     def num_identities(self) -> int:

@@ -10,6 +10,7 @@ optimised together, with per-frame pose corrections when ``refine_poses``.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -63,12 +64,12 @@ def _fit_stage(steps: int) -> LoopConfig:
 class FitConfig:
     """Two-stage personalisation; defaults sized for a 2-core CPU (paper: 1k + 1k steps).
 
-    50 + 450 steps take 3.1 minutes here and reach 30.40 dB on the synthetic subject's novel
-    poses; twice the steps reach 30.69 dB (docs/results.md), so the default stops at the point
-    after which the prior's return on time falls off (docs/training.md). Both stages train on a
-    random background colour per image with the silhouette term (weight 1.0): on that subject
-    30.35 dB on white and 30.08 on black, against 30.40 and 27.31 trained on white only
-    (docs/training.md, "Backgrounds and the silhouette").
+    50 + 450 steps take 3.3 minutes here and reach 30.51 dB on the synthetic subject's novel
+    poses from the shipped prior (33.30 on black); with the previous prior, twice the steps
+    gained 0.3 dB (docs/results.md), so the default stops where the prior's return on time
+    falls off (docs/training.md). Both stages train on a random background colour per image
+    with the silhouette term (weight 1.0); trained on white only, the previous shipped avatar
+    scored 27.31 dB on black (docs/training.md, "Backgrounds and the silhouette").
     """
 
     stage1: LoopConfig = field(default_factory=lambda: _fit_stage(50))
@@ -85,6 +86,10 @@ class FitConfig:
     estimated poses before fitting (0: use them as stored); see :mod:`pghm.train.pose_smoothing`.
     Off by default: on the synthetic subject (6.7 frames/s) sigma = 1 removes 40% of the joint
     error yet gains only 0.1 dB, as the per-frame corrections decide the result (docs/training.md)."""
+    uv_resolution: int | None = None
+    """L of the avatar's UV maps; None: the prior's. Another L carries the prior's weights over
+    (:meth:`PGHM.at_resolution`): (L / L_prior)^2 times as many Gaussians, finer detail, longer
+    fits and slower viewing (docs/training.md, "Resolution, steps and image size")."""
     lpips: bool = True
     body_model_path: str | None = None
 
@@ -135,6 +140,8 @@ def fit(
     check_step_memory(data, config.stage2, "fit stage 2")
     if isinstance(prior, ModelConfig):
         torch.manual_seed(config.stage1.seed)
+        if config.uv_resolution is not None:
+            prior = dataclasses.replace(prior, uv_resolution=config.uv_resolution)
         model, prior_source = PGHM(prior, num_identities=0), "none (from scratch)"
     else:
         prior_avatar = prior if isinstance(prior, Avatar) else load_avatar(prior)
@@ -143,6 +150,8 @@ def fit(
         if data.body_name != prior_avatar.body_name:
             raise PghmError(f"the subject uses the '{data.body_name}' body, the prior '{prior_avatar.body_name}'")
         model = prior_avatar.model
+        if config.uv_resolution not in (None, model.config.uv_resolution):
+            model = model.at_resolution(config.uv_resolution)
         prior_source = recorded_path(prior) if not isinstance(prior, Avatar) else "(in memory)"
     model.train()
     for p in model.parameters():
