@@ -10,9 +10,8 @@ optimised together, with per-frame pose corrections when ``refine_poses``.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -141,7 +140,7 @@ def fit(
     if isinstance(prior, ModelConfig):
         torch.manual_seed(config.stage1.seed)
         if config.uv_resolution is not None:
-            prior = dataclasses.replace(prior, uv_resolution=config.uv_resolution)
+            prior = replace(prior, uv_resolution=config.uv_resolution)
         model, prior_source = PGHM(prior, num_identities=0), "none (from scratch)"
     else:
         prior_avatar = prior if isinstance(prior, Avatar) else load_avatar(prior)
