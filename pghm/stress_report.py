@@ -78,6 +78,18 @@ def _short_paths(text: str) -> str:
     return _PATH.sub(shorten, text)
 
 
+def without_paths(value: object) -> object:
+    """``value`` (JSON: dicts, lists, strings, numbers) with every string's absolute paths shortened,
+    so the shipped record names no directory of the machine that ran the suite."""
+    if isinstance(value, str):
+        return _short_paths(value)
+    if isinstance(value, list):
+        return [without_paths(item) for item in value]
+    if isinstance(value, dict):
+        return {key: without_paths(item) for key, item in value.items()}
+    return value
+
+
 def _cell(text: object) -> str:
     return _short_paths(str(text)).replace("|", "\\|").replace("\n", " ")
 
@@ -168,7 +180,7 @@ def run_stress(report: Path, out: Path, fuzz_seconds: float) -> int:
     if not rows:
         raise PghmError("the stress suite recorded no cases (did it start?); see the pytest output above")
     atomic_write_bytes(report, format_report(rows, fuzz, suite.returncode, seconds, fuzz_seconds).encode())
-    atomic_write_bytes(out / "stress.json", json.dumps({"rows": rows, "fuzz": fuzz}, indent=1).encode())
+    atomic_write_bytes(out / "stress.json", json.dumps(without_paths({"rows": rows, "fuzz": fuzz}), indent=1).encode())
     failed = [row for row in rows if not row["passed"]]
     print(
         f"stress: {len(rows)} cases, {len(rows) - len(failed)} pass, {len(failed)} fail; "

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import PureWindowsPath
+
 import pytest
 import torch
 
@@ -58,3 +60,17 @@ TINY_MODEL = dict(
     condition_channels=(4, 4, 4),
 )
 """A model small enough to train for a few steps inside a test."""
+
+
+def absolute_paths(value: object) -> list[str]:
+    """The strings inside nested dicts and lists (JSON, metadata) that contain a word naming an
+    absolute path (POSIX, home or a Windows drive): what a shipped file must not record."""
+    if isinstance(value, dict):
+        return [text for item in value.values() for text in absolute_paths(item)]
+    if isinstance(value, (list, tuple)):
+        return [text for item in value for text in absolute_paths(item)]
+    if isinstance(value, str) and any(
+        word.startswith(("/", "~")) or PureWindowsPath(word).drive for word in value.split()
+    ):
+        return [value]
+    return []

@@ -3,12 +3,13 @@ eval's metrics are right at the extremes, and a bad learning rate leaves no NaN.
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
 import pytest
 import torch
-from conftest import TINY_MODEL
+from conftest import TINY_MODEL, absolute_paths
 
 from pghm.errors import PghmError
 from pghm.model import ModelConfig
@@ -192,6 +193,9 @@ def test_eval_of_a_real_avatar_writes_reports(tiny_dataset, prior_file, tmp_path
     result = evaluate(avatar, tiny_dataset / "subject_000", tmp_path / "r.json", tmp_path / "s.png")
     summary = result.summary()
     assert 5 < summary["psnr"] < 60 and 0 < summary["ssim"] < 1
+    # The report names files (the subject, the LPIPS weights) but no directory of this machine.
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["lpips"] and absolute_paths(report) == []
     # A chosen subset gives those images' own metrics, in the order asked.
     subset = [result.images[-1], result.images[0]]
     part = evaluate(avatar, tiny_dataset / "subject_000", images=subset)

@@ -27,7 +27,8 @@ MAX_SHARDS = 1024
 MAX_POSE_PRIOR = 100.0
 """Largest --pose-prior weight: 2e5 times the default, past which the loss overflows float32."""
 MAX_SILHOUETTE = 100.0
-"""Largest --silhouette weight: 100 times the default, far past where the mask term dominates the photometric ones."""
+"""Largest --silhouette weight: 25 times the fit's default (100 times the prior's), far past
+where the mask term dominates the photometric ones."""
 MAX_POSE_SMOOTHING = 100.0
 """Largest --pose-smoothing sigma, in frames (the filter's support is a few sigma)."""
 LEARNING_RATE = Real(0.0, MAX_LEARNING_RATE, open_low=True)

@@ -44,7 +44,8 @@ between two random colours along a random direction)."""
 TRAINING_BACKGROUND = "colour"
 """The default of ``pghm fit`` and ``pghm train-prior`` (docs/training.md, "Backgrounds")."""
 SILHOUETTE_WEIGHT = 1.0
-"""The default weight of the silhouette term in ``pghm fit`` and ``pghm train-prior``."""
+"""The default weight of the silhouette term in ``pghm train-prior`` (``pghm fit`` has its own,
+:data:`pghm.train.fit.FIT_SILHOUETTE_WEIGHT`)."""
 
 BACKGROUND_SALT = 0xB6
 """Separates the backgrounds' random stream from the batch plan's (same seed and step)."""

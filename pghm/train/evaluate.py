@@ -204,7 +204,7 @@ def evaluate(
             "poses": "exact (synthetic)" if true_poses else "as stored",
             "pose_refinement": {"steps": refine_poses, "seconds": round(refine_seconds, 1)},
             "mean": result.summary(),
-            "lpips": lpips_status(),
+            "lpips": lpips_status(directories=False),
             "halo": f"pixels outside the mask with mean RGB above {HALO_LEVEL} rendered on black",
             "per_image": [
                 {

@@ -26,11 +26,10 @@ from tqdm import tqdm
 
 from pghm.body import load_body
 from pghm.io.avatar import Avatar, avatar_geometry
-from pghm.train.background import SILHOUETTE_WEIGHT, TRAINING_BACKGROUND, draw_backgrounds
+from pghm.train.background import TRAINING_BACKGROUND, draw_backgrounds
 from pghm.train.data import PoseCorrections, TrainingData
-from pghm.train.fit import FIT_POSE_PRIOR, FitConfig
+from pghm.train.fit import FitConfig
 from pghm.train.loop import AvatarObjective
-from pghm.train.losses import LossWeights
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +57,7 @@ def refine_test_poses(
     body = load_body(avatar.body_name, body_model_path)
     geometry = avatar_geometry(avatar, body_model_path=body_model_path)
     corrections = PoseCorrections.of_estimated_joints(data.num_frames, body)
-    weights = LossWeights(pose_prior=FIT_POSE_PRIOR, silhouette=SILHOUETTE_WEIGHT)
+    weights = FitConfig().stage2.loss  # the fit's own loss, so a frozen avatar sees the same objective
     model = avatar.model.eval()
     frozen = [p for p in model.parameters() if p.requires_grad]
     for p in frozen:
