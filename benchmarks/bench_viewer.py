@@ -23,8 +23,14 @@ Sections (all by default):
   the keys orbit_stale_order_max_error / _mean_error (the order at the refresh angle) and
   orbit_cull_max_error / _mean_error (back-face culling made at the refresh angle's lag).
 
+* resolution (only with ``--avatars``): the scrub path of the shipped avatar and of other avatars
+  (fits at another ``--uv-resolution``) in one run, frame by frame in turn, with each one's ratio
+  to the shipped one; written to benchmarks/results/bench_viewer_resolution.json.
+
     xvfb-run -a -s "-screen 0 1920x1080x24" .venv/bin/python benchmarks/bench_viewer.py \
-        [--frames 40] [--sections interactive scrub orbit accuracy window]
+        [--frames 40] [--sections interactive scrub orbit accuracy window] [--avatars A.pt ...]
+
+``--sections`` with no names runs none of them (``--avatars`` alone: the resolution comparison).
 
 Prints tables and writes benchmarks/results/bench_viewer.json (with the driver and the load
 average: the machine is shared, so medians and minima are both reported).
@@ -73,24 +79,28 @@ def the_avatar():
 # ------------------------------------------------------------------------------ scrub
 
 
-def bench_scrub(ctx, avatar, frames: int) -> list[dict]:
+DISPLAY_MODES = (
+    ("I_d + view-dependent (default)", "dynamic", True, 1.0, "auto"),
+    ("I_d + view-dependent, quads only (before points)", "dynamic", True, 1.0, "quads"),
+    ("I_d, no view-dependent", "dynamic", False, 1.0, "auto"),
+    ("I_s (static)", "static", False, 1.0, "auto"),
+    ("I_d + view-dep., approx: 50% resolution", "dynamic", True, 0.5, "auto"),
+)
+"""(label, Gaussians drawn, view-dependent colour, internal resolution scale, sprite primitive)."""
+
+
+def bench_scrub(ctx, avatar, frames: int, modes: tuple = DISPLAY_MODES, avatars: list | None = None) -> list[dict]:
     """Consecutive walk frames, as the viewer runs them when the timeline is dragged.
 
     The display modes take turns frame by frame (one driver and renderer each), so that
-    load from other processes falls on all of them alike.
+    load from other processes falls on all of them alike. ``avatars``: one avatar per mode
+    (default: ``avatar`` for all), to compare avatars under the same load.
     """
-    modes = (
-        ("I_d + view-dependent (default)", "dynamic", True, 1.0, "auto"),
-        ("I_d + view-dependent, quads only (before points)", "dynamic", True, 1.0, "quads"),
-        ("I_d, no view-dependent", "dynamic", False, 1.0, "auto"),
-        ("I_s (static)", "static", False, 1.0, "auto"),
-        ("I_d + view-dep., approx: 50% resolution", "dynamic", True, 0.5, "auto"),
-    )
-    drivers = [AvatarDriver(avatar) for _ in modes]
+    drivers = [AvatarDriver(a) for a in (avatars or [avatar] * len(modes))]
     renderers = [SpriteRenderer(ctx, primitive=mode[4]) for mode in modes]
     body, shape = drivers[0].body, drivers[0].geometry.shape
     motion = open_motion("walk", body, shape)
-    identity = avatar.identity_map()
+    identities = [driver.avatar.identity_map() for driver in drivers]
     width, height = SCENE_VIEWPORT
     framing = frame_points(drivers[0].geometry.surface.positions.numpy(), 40.0, width / height)
     rest_root = drivers[0].root_position(drivers[0].rest_pose())
@@ -99,8 +109,8 @@ def bench_scrub(ctx, avatar, frames: int) -> list[dict]:
     stages = [{name: [] for name in names} for _ in modes]
     try:
         for k in range(frames + 2):
-            for (_label, gaussians, view_dependent, scale, _primitive), driver, renderer, record in zip(
-                modes, drivers, renderers, stages
+            for (_label, gaussians, view_dependent, scale, _primitive), driver, identity, renderer, record in zip(
+                modes, drivers, identities, renderers, stages
             ):
                 start = time.perf_counter()
                 pose = motion.pose(k % motion.num_frames)
@@ -128,12 +138,26 @@ def bench_scrub(ctx, avatar, frames: int) -> list[dict]:
             renderer.release()
         screen.release()
     rows = []
-    for (label, *_), record in zip(modes, stages):
-        row = {"display": label, "gaussians": drivers[0].geometry.num_gaussians}
+    for (label, *_), driver, record in zip(modes, drivers, stages):
+        row = {"display": label, "gaussians": driver.geometry.num_gaussians}
         row.update({f"{name}_ms": float(np.median(values)) for name, values in record.items()})
         row["total_min_ms"] = float(np.min(record["total"]))
         rows.append(row)
     rows[-1]["load"] = load_average()
+    return rows
+
+
+def bench_resolutions(ctx, shipped, shipped_name: str, paths: list[str], frames: int) -> list[dict]:
+    """The default display's scrub frame of the shipped avatar and of each avatar in ``paths``
+    (taking turns frame by frame), with each one's time as a ratio to the shipped one's."""
+    avatars = [shipped] + [load_avatar(path) for path in paths]
+    names = [shipped_name] + [Path(path).name for path in paths]
+    rows = bench_scrub(ctx, shipped, frames, modes=DISPLAY_MODES[:1] * len(avatars), avatars=avatars)
+    base = rows[0]["total_ms"]
+    for row, name, avatar in zip(rows, names, avatars):
+        row["display"] = name
+        row["L"] = avatar.model.config.uv_resolution
+        row["ratio"] = row["total_ms"] / base
     return rows
 
 
@@ -546,10 +570,16 @@ def print_interactive(result: dict) -> None:
     print(f"cache after one pass: {after['cache_frames']} frames, {after['cache_mb']:.1f} MB; loads {result['loads']}")
 
 
+SECTIONS = ("interactive", "scrub", "orbit", "accuracy", "window")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=40, help="frames per measurement")
-    parser.add_argument("--sections", nargs="+", default=["interactive", "scrub", "orbit", "accuracy", "window"])
+    parser.add_argument("--sections", nargs="*", default=list(SECTIONS), choices=SECTIONS)
+    parser.add_argument(
+        "--avatars", nargs="+", default=[], help="avatars to scrub beside the shipped one (the resolution section)"
+    )
     args = parser.parse_args()
     setup_threads()
     torch.manual_seed(0)
@@ -563,6 +593,12 @@ def main() -> None:
         print(f"\nScrubbing the walk, scene viewport {width} x {height}, ms (medians; total_min = least disturbed)")
         results["scrub"] = bench_scrub(ctx, avatar, args.frames)
         print_table(results["scrub"])
+    if args.avatars:
+        width, height = SCENE_VIEWPORT
+        print(f"\nScrubbing the walk with each avatar in turn, {width} x {height}, default display, ms")
+        rows = bench_resolutions(ctx, avatar, avatar_name, args.avatars, args.frames)
+        print_table(rows)
+        write_json("bench_viewer_resolution", {"driver": driver, "rows": rows})
     if "orbit" in args.sections:
         width, height = ORBIT_SIZE
         print(f"\nOrbit-only frames, 10k-Gaussian body scene, {width} x {height}, ms; error vs the exact image")
@@ -613,8 +649,9 @@ def main() -> None:
             results["slider_ui_max_ms"] = after["slider_ui_max_ms"]
         else:
             print("\ninteractive: skipped (needs DISPLAY, e.g. xvfb-run, and assets/avatar.pt)")
-    results["load_after"] = load_average()
-    write_json("bench_viewer", results)
+    if args.sections:
+        results["load_after"] = load_average()
+        write_json("bench_viewer", results)
 
 
 if __name__ == "__main__":
