@@ -89,14 +89,14 @@ DISPLAY_MODES = (
 """(label, Gaussians drawn, view-dependent colour, internal resolution scale, sprite primitive)."""
 
 
-def bench_scrub(ctx, avatar, frames: int, modes: tuple = DISPLAY_MODES, avatars: list | None = None) -> list[dict]:
+def bench_scrub(ctx, avatars: list, frames: int, modes: tuple = DISPLAY_MODES) -> list[dict]:
     """Consecutive walk frames, as the viewer runs them when the timeline is dragged.
 
     The display modes take turns frame by frame (one driver and renderer each), so that
-    load from other processes falls on all of them alike. ``avatars``: one avatar per mode
-    (default: ``avatar`` for all), to compare avatars under the same load.
+    load from other processes falls on all of them alike. ``avatars``: one per mode (the same
+    avatar in every mode, or several avatars in one mode to compare them under the same load).
     """
-    drivers = [AvatarDriver(a) for a in (avatars or [avatar] * len(modes))]
+    drivers = [AvatarDriver(avatar) for avatar in avatars]
     renderers = [SpriteRenderer(ctx, primitive=mode[4]) for mode in modes]
     body, shape = drivers[0].body, drivers[0].geometry.shape
     motion = open_motion("walk", body, shape)
@@ -152,7 +152,7 @@ def bench_resolutions(ctx, shipped, shipped_name: str, paths: list[str], frames:
     (taking turns frame by frame), with each one's time as a ratio to the shipped one's."""
     avatars = [shipped] + [load_avatar(path) for path in paths]
     names = [shipped_name] + [Path(path).name for path in paths]
-    rows = bench_scrub(ctx, shipped, frames, modes=DISPLAY_MODES[:1] * len(avatars), avatars=avatars)
+    rows = bench_scrub(ctx, avatars, frames, modes=DISPLAY_MODES[:1] * len(avatars))
     base = rows[0]["total_ms"]
     for row, name, avatar in zip(rows, names, avatars):
         row["display"] = name
@@ -591,7 +591,7 @@ def main() -> None:
     if "scrub" in args.sections:
         width, height = SCENE_VIEWPORT
         print(f"\nScrubbing the walk, scene viewport {width} x {height}, ms (medians; total_min = least disturbed)")
-        results["scrub"] = bench_scrub(ctx, avatar, args.frames)
+        results["scrub"] = bench_scrub(ctx, [avatar] * len(DISPLAY_MODES), args.frames)
         print_table(results["scrub"])
     if args.avatars:
         width, height = SCENE_VIEWPORT
