@@ -11,9 +11,11 @@ b. root-relative MPJPE and PA-MPJPE (per-frame similarity Procrustes) of the can
 c. 2D error of the canonical joints projected by each camera, in source-video pixels, as
    % of the person's height in that frame (the true mask's extent): <= 2 %;
 d. with ``--fit``: ``pghm fit`` (defaults, assets/prior.pt) on the captured subject and on
-   the same frames with the true masks, poses and cameras (same crop, same split); each
-   evaluated on its own test frames; the captured one within 1.5 dB PSNR; and again with each
-   test frame's pose first refined against its image (``pghm eval --refine-poses``, both sides);
+   the same subject with the true poses and cameras (the capture's images, masks, crop and
+   split), each evaluated on the same test images: the captured one within 1.5 dB PSNR; and
+   again with each test frame's pose first refined against its image (``pghm eval
+   --refine-poses``, both sides). A third fit, on the true masks as well (the images
+   composited through them), gives the stricter gap that includes the masks' error (a);
 e. speed and memory of the pipeline on a 300-frame 512-px video (a child process running
    the front end and the body fit, timed apart; its peak resident memory): <= 120 s, <= 2 GB.
 
@@ -34,6 +36,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -56,6 +59,7 @@ TARGETS = {
     "pa_mpjpe_mm": 50.0,
     "reproj_pct": 2.0,
     "psnr_gap_db": 1.5,
+    "psnr_gap_refined_db": 1.5,
     "seconds_300": 120.0,
     "peak_gb": 2.0,
 }
@@ -280,12 +284,13 @@ def measure(truth: WalkTruth, subject_dir: Path) -> Comparison:
 # ------------------------------------------------------------------ d. the avatar fitted on the capture
 
 
-def reference_subject(truth: WalkTruth, video: Path, captured_dir: Path, out: Path) -> Path:
-    """The captured subject's frames, crop and split with the true masks, poses and cameras.
+def reference_subject(truth: WalkTruth, video: Path, captured_dir: Path, out: Path, true_masks: bool) -> Path:
+    """The captured subject's frames, crop and split with the true poses and cameras; its images
+    and masks, or with ``true_masks`` the true masks.
 
-    Images are the decoded video frames (the same compression) composited on white
-    through the true masks, cropped as the capture cropped; K is the true intrinsics
-    through the crop, world_to_camera the true (moving) camera.
+    K is the true intrinsics through the crop, world_to_camera the true (moving) camera. With
+    ``true_masks`` the images are the decoded video frames (the same compression) composited on
+    white through the true masks, cropped as the capture cropped.
     """
     from pghm.data.subject import SubjectArrays, write_image, write_subject
 
@@ -293,11 +298,15 @@ def reference_subject(truth: WalkTruth, video: Path, captured_dir: Path, out: Pa
     a, t = captured.arrays, truth.arrays
     frames = np.asarray(a.frame_index, dtype=np.int64)
     crop = Crop.of(captured)
-    decoded = read_video(video, set(frames.tolist()))
-    for i, frame in enumerate(frames):
-        mask = crop.image_to_subject(truth.masks[frame])
-        rgb = np.where(mask[..., None], crop.image_to_subject(decoded[frame]), 255).astype(np.uint8)
-        write_image(out, i, rgb, mask.astype(np.uint8) * 255)
+    if true_masks:
+        decoded = read_video(video, set(frames.tolist()))
+        for i, frame in enumerate(frames):
+            mask = crop.image_to_subject(truth.masks[frame])
+            rgb = np.where(mask[..., None], crop.image_to_subject(decoded[frame]), 255).astype(np.uint8)
+            write_image(out, i, rgb, mask.astype(np.uint8) * 255)
+    else:
+        for folder in ("images", "masks"):
+            shutil.copytree(Path(captured_dir) / folder, out / folder)
     arrays = SubjectArrays(
         K=crop.to_subject_K(t.K[frames]),
         world_to_camera=t.world_to_camera[frames],
@@ -312,7 +321,8 @@ def reference_subject(truth: WalkTruth, video: Path, captured_dir: Path, out: Pa
         frame_index=frames,
         view_index=np.zeros(len(frames), dtype=np.int64),
     )
-    write_subject(out, arrays, {"source": "bench_capture reference: true masks, poses and cameras"})
+    truths = "true masks, poses and cameras" if true_masks else "the capture's masks; true poses and cameras"
+    write_subject(out, arrays, {"source": f"bench_capture reference: {truths}"})
     return out
 
 
@@ -447,12 +457,16 @@ def capture_case(work: Path, seed: int, kind: str, frames: int, fit: bool) -> tu
         "per_frame": comparison.metrics["per_frame"],
     }
     if fit:
-        reference = reference_subject(truth, video, subject_dir, work / f"{kind}_{seed}_{frames}f_reference")
-        captured_fit = fit_and_eval(subject_dir, work / f"{kind}_{seed}_captured.pt")
-        reference_fit = fit_and_eval(reference, work / f"{kind}_{seed}_reference.pt")
-        row["fit"] = {"captured": captured_fit, "reference": reference_fit}
-        row["psnr_gap_db"] = round(reference_fit["psnr"] - captured_fit["psnr"], 2)
-        row["psnr_gap_refined_db"] = round(reference_fit["refined_psnr"] - captured_fit["refined_psnr"], 2)
+        row["fit"] = {"captured": fit_and_eval(subject_dir, work / f"{kind}_{seed}_captured.pt")}
+        for name, true_masks in (("poses", False), ("all", True)):
+            reference = work / f"{kind}_{seed}_{frames}f_true_{name}"
+            reference_subject(truth, video, subject_dir, reference, true_masks)
+            row["fit"][f"true_{name}"] = fit_and_eval(reference, work / f"{kind}_{seed}_true_{name}.pt")
+        captured, poses, every = (row["fit"][k] for k in ("captured", "true_poses", "true_all"))
+        row["psnr_gap_db"] = round(poses["psnr"] - captured["psnr"], 2)
+        row["psnr_gap_refined_db"] = round(poses["refined_psnr"] - captured["refined_psnr"], 2)
+        row["psnr_gap_all_db"] = round(every["psnr"] - captured["psnr"], 2)
+        row["psnr_gap_all_refined_db"] = round(every["refined_psnr"] - captured["refined_psnr"], 2)
     return row, frame_tiles(truth, video, subject_dir, comparison)
 
 
@@ -513,7 +527,8 @@ def verdicts(rows: list[dict], speed: dict | None) -> dict[str, bool]:
             out[key] = all(r[key] <= TARGETS[key] for r in rows)
     fitted = [r for r in rows if "psnr_gap_db" in r]
     if fitted:
-        out["psnr_gap_db"] = all(r["psnr_gap_db"] <= TARGETS["psnr_gap_db"] for r in fitted)
+        for key in ("psnr_gap_db", "psnr_gap_refined_db"):
+            out[key] = all(r[key] <= TARGETS[key] for r in fitted)
     if speed is not None:
         out["seconds_300"] = speed["seconds"] <= TARGETS["seconds_300"]
         out["peak_gb"] = speed["peak_gb"] <= TARGETS["peak_gb"]
@@ -527,7 +542,7 @@ def report(
     if rows:
         columns = ["background", "seed", "kept", "iou", "mpjpe_mm", "pa_mpjpe_mm", "reproj_pct", "capture_s", "peak_gb"]
         if any("psnr_gap_db" in r for r in rows):
-            columns += ["psnr_gap_db", "psnr_gap_refined_db"]
+            columns += ["psnr_gap_db", "psnr_gap_refined_db", "psnr_gap_all_db", "psnr_gap_all_refined_db"]
         print_table(rows, columns)
         figure = figure_name(args.results)
         Image.fromarray(np.concatenate(tiles, axis=0)).save(DOCS / f"{figure}_frames.png")

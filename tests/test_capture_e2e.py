@@ -20,6 +20,7 @@ from PIL import Image
 from pghm.cli.main import main
 from pghm.data.subject import Subject, check, image_name, read_mask
 from pghm.data.synth.video import graded_background, render_walk_video, walk_config
+from pghm.train.data import ESTIMATOR_ROTATION_SIGMA, ESTIMATOR_TRANSLATION_SIGMA, TrainingData
 
 pytestmark = pytest.mark.gl
 
@@ -81,6 +82,11 @@ def test_capture_writes_a_subject_the_checker_accepts(captured):
     meta = json.loads((out / "meta.json").read_text())
     assert meta["input"] == "walk.mp4"
     assert meta["counts"]["frames_read"] == FRAMES
+    # The capture states its poses' error, wider than the synthetic data's: the fit's prior on the
+    # pose corrections (and test-time refinement) then lets them move that far.
+    rotation_sigma, translation_sigma = TrainingData(out).pose_sigmas()
+    assert float(rotation_sigma.min()) > 3 * ESTIMATOR_ROTATION_SIGMA
+    assert float(translation_sigma.min()) > 3 * ESTIMATOR_TRANSLATION_SIGMA
 
 
 def test_frame_index_is_the_source_frame(captured):

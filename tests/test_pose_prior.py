@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import importlib
+import json
 import math
+import shutil
 
 import pytest
 import torch
 from conftest import TINY_MODEL
 
 from pghm.cli.main import main
-from pghm.errors import PghmError
+from pghm.errors import DatasetError, PghmError
 from pghm.model import PGHM, ModelConfig
 from pghm.train.data import ESTIMATOR_ROTATION_SIGMA, ESTIMATOR_TRANSLATION_SIGMA, PoseCorrections, TrainingData
 from pghm.train.fit import FIT_POSE_PRIOR, FitConfig
@@ -92,3 +94,55 @@ def test_commands_without_options_run_the_library_defaults(monkeypatch, command,
     assert seen["config"] == expected
     stages = [expected.stage1, expected.stage2] if isinstance(expected, FitConfig) else [expected.loop]
     assert all(stage.loss.pose_prior == weight for stage in stages)
+
+
+def _state_pose_noise(subject, noise) -> None:
+    meta_path = subject / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    meta["pose_noise"] = noise
+    meta_path.write_text(json.dumps(meta))
+
+
+def test_each_subject_scales_its_frames_prior_by_its_stated_noise(tiny_dataset, tmp_path):
+    """meta.json's pose_noise sets the width of the prior on that subject's frames only: a correction
+    of one stated sigma costs 1 on either subject, whatever their sigmas."""
+    data_dir = tmp_path / "data"
+    shutil.copytree(tiny_dataset, data_dir)
+    _state_pose_noise(data_dir / "subject_001", {"rotation_std_deg": 6.0, "translation_std_m": 0.03})
+    data = TrainingData(data_dir)
+    rotation_sigma, translation_sigma = data.pose_sigmas()
+    first, second = data.load(0, 0).frame_key, data.load(1, 0).frame_key
+    # The generator states its own noise in subject_000 (the preset's 2 degrees, 1 cm).
+    assert rotation_sigma[first].item() == pytest.approx(ESTIMATOR_ROTATION_SIGMA)
+    assert translation_sigma[first].item() == pytest.approx(ESTIMATOR_TRANSLATION_SIGMA)
+    assert rotation_sigma[second].item() == pytest.approx(math.radians(6.0))
+    assert translation_sigma[second].item() == pytest.approx(0.03)
+
+    corrections = PoseCorrections(data.num_frames, bones=[1, 3], sigmas=(rotation_sigma, translation_sigma))
+    with torch.no_grad():
+        corrections.rotations[first, 0, 0] = ESTIMATOR_ROTATION_SIGMA
+        corrections.rotations[second, 1, 2] = math.radians(6.0)
+        corrections.translation[second, 1] = 0.03
+    assert corrections.prior(torch.tensor([first])).item() == pytest.approx(1.0, rel=1e-5)
+    assert corrections.prior(torch.tensor([second])).item() == pytest.approx(2.0, rel=1e-5)
+
+
+@pytest.mark.parametrize(
+    "noise", ["loud", {"rotation_std_deg": -1.0, "translation_std_m": 0.01}, {"rotation_std_deg": 2}]
+)
+def test_a_bad_stated_pose_noise_is_one_line_naming_the_file(tiny_dataset, tmp_path, noise):
+    subject = tmp_path / "subject"
+    shutil.copytree(tiny_dataset / "subject_000", subject)
+    _state_pose_noise(subject, noise)
+    with pytest.raises(DatasetError, match=r"meta\.json: 'pose_noise' must give numbers >= 0") as raised:
+        TrainingData(subject)
+    assert "\n" not in str(raised.value)
+
+
+def test_zero_stated_noise_keeps_the_default_width(tiny_dataset, tmp_path):
+    subject = tmp_path / "subject"
+    shutil.copytree(tiny_dataset / "subject_000", subject)
+    _state_pose_noise(subject, {"rotation_std_deg": 0, "translation_std_m": 0.0})
+    rotation_sigma, translation_sigma = TrainingData(subject).pose_sigmas()
+    assert torch.allclose(rotation_sigma, torch.tensor(ESTIMATOR_ROTATION_SIGMA))
+    assert torch.allclose(translation_sigma, torch.tensor(ESTIMATOR_TRANSLATION_SIGMA))

@@ -7,6 +7,7 @@ checker reports exactly that (one line naming the file and the problem), and tha
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -82,6 +83,15 @@ def test_check_names_a_non_finite_pose(subject_dir, capsys):
     rotations[4, 10, 1] = np.nan
     _rewrite_npz(subject_dir / "poses.npz", rotations=rotations)
     assert _problems(subject_dir) == ["poses.npz: 'rotations' is not finite for image(s) 4"]
+    assert _cli_check(subject_dir, capsys)[0] == 2
+
+
+def test_check_names_a_malformed_pose_noise(subject_dir, capsys):
+    meta = json.loads((subject_dir / "meta.json").read_text())
+    meta["pose_noise"] = {"rotation_std_deg": "high", "translation_std_m": 0.05}
+    (subject_dir / "meta.json").write_text(json.dumps(meta))
+    (problem,) = _problems(subject_dir)
+    assert problem.startswith("meta.json: 'pose_noise' must give numbers >= 0 rotation_std_deg and translation_std_m")
     assert _cli_check(subject_dir, capsys)[0] == 2
 
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import zipfile
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -132,6 +133,23 @@ def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
 def json_bytes(value: object) -> bytes:
     """Stable JSON: sorted keys, two-space indent, trailing newline."""
     return (json.dumps(value, indent=2, sort_keys=True) + "\n").encode("utf-8")
+
+
+POSE_NOISE_KEYS = ("rotation_std_deg", "translation_std_m")
+"""The fields of meta.json's optional ``pose_noise``: the per-axis standard deviation of the stored
+poses' error, joint rotations in degrees and root translation in metres."""
+
+
+def stated_pose_noise(meta: dict) -> tuple[float, float] | None:
+    """(rotation std in degrees, translation std in metres) a subject's meta.json states for its
+    poses' error, or None when it states none; ValueError naming the problem for a malformed one."""
+    stated = meta.get("pose_noise")
+    if stated is None:
+        return None
+    values = [stated.get(key) if isinstance(stated, dict) else None for key in POSE_NOISE_KEYS]
+    if not all(type(v) in (int, float) and math.isfinite(v) and v >= 0 for v in values):
+        raise ValueError(f"'pose_noise' must give numbers >= 0 {' and '.join(POSE_NOISE_KEYS)}, got {stated!r:.80}")
+    return float(values[0]), float(values[1])
 
 
 def write_subject(directory: str | Path, arrays: SubjectArrays, meta: dict) -> None:
@@ -679,8 +697,12 @@ def check_subject(directory: str | Path) -> list[Problem]:
             meta = json.loads(meta_path.read_text(encoding="utf-8"))
             if not isinstance(meta, dict) or meta.get("format") != SUBJECT_FORMAT:
                 problems.append(Problem("meta.json", f'"format" must be "{SUBJECT_FORMAT}"'))
+            else:
+                stated_pose_noise(meta)
         except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as error:
             problems.append(Problem("meta.json", f"unreadable JSON ({error})"))
+        except ValueError as error:
+            problems.append(Problem("meta.json", str(error)))
     cameras = _load_npz_for_check(directory / "cameras.npz", CAMERA_KEYS, problems)
     poses = _load_npz_for_check(directory / "poses.npz", POSE_KEYS, problems)
     if cameras is None:

@@ -21,7 +21,7 @@ from PIL import Image
 from torch import Tensor, nn
 
 from pghm.body.model import BodyModel
-from pghm.data.subject import Dataset, Frame, Subject
+from pghm.data.subject import Dataset, Frame, Subject, stated_pose_noise
 from pghm.errors import DatasetError, PghmError
 from pghm.io.read_errors import IMAGE_READ_ERRORS
 from pghm.splat import Camera
@@ -75,6 +75,33 @@ def _smoothed_poses(subject: Subject, images: np.ndarray, sigma: float) -> tuple
     row = np.searchsorted(frames, frame_of)
     out_rotations[images], out_translation[images] = rotations.numpy()[row], translation.numpy()[row]
     return out_rotations, out_translation
+
+
+ESTIMATOR_ROTATION_SIGMA = math.radians(2.0)
+"""Per-axis standard deviation (radians) of a pose estimator's joint rotations when a subject does
+not state its own (meta.json ``pose_noise``): the synthetic data's (``SynthConfig.pose_noise_deg``)."""
+ESTIMATOR_TRANSLATION_SIGMA = 0.01
+"""Per-axis standard deviation (metres) of its root translation (``SynthConfig.translation_noise_m``)."""
+
+
+def pose_noise(subject: Subject) -> tuple[float, float]:
+    """(rotation sigma in radians, translation sigma in metres) of the subject's stored poses:
+    what its meta.json states (:func:`stated_pose_noise`), else the synthetic data's defaults.
+
+    The scale of the Gaussian prior on the subject's pose corrections: a capture's estimates
+    are several times noisier than the synthetic data's, and a prior at the synthetic scale
+    holds their corrections back (docs/capture.md).
+    """
+    try:
+        stated = stated_pose_noise(subject.meta)
+    except ValueError as error:
+        raise DatasetError(f"{subject.directory / 'meta.json'}: {error}") from None
+    rotation, translation = stated if stated is not None else (0.0, 0.0)
+    # Not stated, or exact poses (0): the default width (a prior of zero width has no finite value).
+    return (
+        math.radians(rotation) if rotation > 0 else ESTIMATOR_ROTATION_SIGMA,
+        translation if translation > 0 else ESTIMATOR_TRANSLATION_SIGMA,
+    )
 
 
 class TrainingData:
@@ -133,6 +160,7 @@ class TrainingData:
             frames = subject.arrays.frame_index
             offset += int(frames.max()) + 1 if frames is not None else len(subject)
         self.num_frames = offset
+        self.pose_noise = [pose_noise(subject) for subject in self.subjects]
         self.smoothed_poses = [
             _smoothed_poses(subject, images, pose_smoothing) if pose_smoothing else None
             for subject, images in zip(self.subjects, self.images)
@@ -191,6 +219,15 @@ class TrainingData:
 
     def shape(self, identity: int) -> Tensor:
         return torch.as_tensor(self.subjects[identity].arrays.shape, dtype=torch.float32)
+
+    def pose_sigmas(self) -> tuple[Tensor, Tensor]:
+        """(num_frames,) rotation sigmas (radians) and (num_frames,) translation sigmas (metres) of
+        every frame's stored pose: its subject's :func:`pose_noise`."""
+        rotation, translation = torch.empty(self.num_frames), torch.empty(self.num_frames)
+        ends = [*self.frame_offsets[1:], self.num_frames]
+        for start, end, (r, t) in zip(self.frame_offsets, ends, self.pose_noise):
+            rotation[start:end], translation[start:end] = r, t
+        return rotation, translation
 
     def load(self, identity: int, image_index: int) -> Sample:
         """Read one image and its annotations."""
@@ -260,13 +297,6 @@ class TrainingData:
         return samples
 
 
-ESTIMATOR_ROTATION_SIGMA = math.radians(2.0)
-"""Per-axis standard deviation (radians) of a pose estimator's joint rotations, as the synthetic
-data assume it (``SynthConfig.pose_noise_deg``); the scale of the corrections' prior."""
-ESTIMATOR_TRANSLATION_SIGMA = 0.01
-"""Per-axis standard deviation (metres) of its root translation (``SynthConfig.translation_noise_m``)."""
-
-
 class PoseCorrections(nn.Module):
     """Learned per-frame corrections of the stored poses (the paper refines noisy poses).
 
@@ -280,23 +310,34 @@ class PoseCorrections(nn.Module):
     Args:
         num_frames: number of frames (rows).
         bones: (K,) indices of the corrected bones.
+        sigmas: (num_frames,) rotation sigmas (radians) and (num_frames,) translation sigmas
+            (metres) of the stored poses' noise, or one of each for every frame: the scale of
+            :meth:`prior` (:meth:`TrainingData.pose_sigmas`); None: the synthetic data's.
     """
 
-    def __init__(self, num_frames: int, bones: list[int]) -> None:
+    def __init__(self, num_frames: int, bones: list[int], sigmas: tuple[Tensor, Tensor] | None = None) -> None:
         super().__init__()
+        if sigmas is None:
+            sigmas = torch.tensor(ESTIMATOR_ROTATION_SIGMA), torch.tensor(ESTIMATOR_TRANSLATION_SIGMA)
         self.register_buffer("bones", torch.tensor(sorted(set(bones)), dtype=torch.long), persistent=False)
+        # Not in checkpoints: the data state them again on resume.
+        rotation_sigma, translation_sigma = (torch.as_tensor(s).float().expand(num_frames).clone() for s in sigmas)
+        self.register_buffer("rotation_sigma", rotation_sigma, persistent=False)
+        self.register_buffer("translation_sigma", translation_sigma, persistent=False)
         self.rotations = nn.Parameter(torch.zeros(num_frames, len(self.bones), 3))
         self.translation = nn.Parameter(torch.zeros(num_frames, 3))
 
     @classmethod
-    def of_estimated_joints(cls, num_frames: int, body: BodyModel) -> PoseCorrections:
+    def of_estimated_joints(
+        cls, num_frames: int, body: BodyModel, sigmas: tuple[Tensor, Tensor] | None = None
+    ) -> PoseCorrections:
         """Corrections of the body's canonical joints (those a pose estimator reports)."""
-        return cls(num_frames, list(body.joint_map.values()))
+        return cls(num_frames, list(body.joint_map.values()), sigmas)
 
     def prior(self, frame_keys: Tensor) -> Tensor:
-        """The corrections of frames (B,) in units of the estimator's noise, averaged over frames:
+        """The corrections of frames (B,) in units of their estimates' noise, averaged over frames:
 
-            mean_b [ sum_j |delta_r[b, j]|^2 / sigma_r^2 + |delta_t[b]|^2 / sigma_t^2 ],
+            mean_b [ sum_j |delta_r[b, j]|^2 / sigma_r[b]^2 + |delta_t[b]|^2 / sigma_t[b]^2 ],
 
         minus twice the log of a zero-mean Gaussian prior on them, up to a constant. Adam steps
         every coordinate at its learning rate whatever the size of its gradient, so those a
@@ -304,8 +345,8 @@ class PoseCorrections(nn.Module):
         10 to 100 times weaker) drift with the noise; the prior holds them near the estimate
         while the image moves the well-seen ones.
         """
-        rotations = self.rotations[frame_keys].square().flatten(1).sum(1) / ESTIMATOR_ROTATION_SIGMA**2
-        translation = self.translation[frame_keys].square().sum(1) / ESTIMATOR_TRANSLATION_SIGMA**2
+        rotations = self.rotations[frame_keys].square().flatten(1).sum(1) / self.rotation_sigma[frame_keys].square()
+        translation = self.translation[frame_keys].square().sum(1) / self.translation_sigma[frame_keys].square()
         return (rotations + translation).mean()
 
     def forward(self, frame_keys: Tensor, rotations: Tensor, translation: Tensor) -> tuple[Tensor, Tensor]:

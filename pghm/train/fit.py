@@ -164,7 +164,9 @@ def fit(
         p.requires_grad_(False)
     geometries = GeometryCache(data, model.config, config.body_model_path)
     latent = nn.Parameter(initial_latent(model))
-    corrections = PoseCorrections.of_estimated_joints(data.num_frames, geometries.body) if config.refine_poses else None
+    corrections = None
+    if config.refine_poses:
+        corrections = PoseCorrections.of_estimated_joints(data.num_frames, geometries.body, data.pose_sigmas())
     lpips, lpips_line = lpips_for(config.lpips)
     objective = AvatarObjective(model, latent, corrections, config.stage1.loss, lpips)
     ckpt = checkpoint_path(out)

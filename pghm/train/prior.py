@@ -131,7 +131,9 @@ def train_prior(
     check_step_memory(data, config.loop, "train-prior")
     geometries = GeometryCache(data, config.model, config.body_model_path)
     model = initial_model(config.model, data.num_identities, config.loop.seed)
-    corrections = PoseCorrections.of_estimated_joints(data.num_frames, geometries.body) if config.refine_poses else None
+    corrections = None
+    if config.refine_poses:
+        corrections = PoseCorrections.of_estimated_joints(data.num_frames, geometries.body, data.pose_sigmas())
     lpips, lpips_line = lpips_for(config.lpips)
     objective = AvatarObjective(model, None, corrections, config.loop.loss, lpips)
     bank = [model.identity_bank]

@@ -10,11 +10,11 @@ PeopleSnapshot). This module does it with the fit's own objective and correction
     delta* = argmin_delta  L(render(avatar, pose + delta), image) + w_p P(delta)
 
 L is the fit's loss (L1 + SSIM + silhouette, on a random background colour per image and
-step), P the fit's Gaussian prior on the corrections (:meth:`PoseCorrections.prior`) with its
-weight w_p; only delta changes (the estimator's joints and the root translation, one row per
-frame). A frame's row depends on its image alone, so one step over all frames is one step of
-each frame's own problem. Appearance is untouched: the latent and every network weight stay as
-fitted.
+step), P the fit's Gaussian prior on the corrections (:meth:`PoseCorrections.prior`, as wide
+as the subject's stated pose noise) with its weight w_p; only delta changes (the estimator's
+joints and the root translation, one row per frame). A frame's row depends on its image
+alone, so one step over all frames is one step of each frame's own problem. Appearance is
+untouched: the latent and every network weight stay as fitted.
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ def refine_test_poses(
     """
     body = load_body(avatar.body_name, body_model_path)
     geometry = avatar_geometry(avatar, body_model_path=body_model_path)
-    corrections = PoseCorrections.of_estimated_joints(data.num_frames, body)
+    corrections = PoseCorrections.of_estimated_joints(data.num_frames, body, data.pose_sigmas())
     weights = FitConfig().stage2.loss  # the fit's own loss, so a frozen avatar sees the same objective
     model = avatar.model.eval()
     frozen = [p for p in model.parameters() if p.requires_grad]
