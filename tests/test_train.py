@@ -210,31 +210,58 @@ POSE_SHIFT = np.array([0.08, 0.05, 0.0], dtype=np.float32)
 REFINE_STEPS = 30
 
 
+def shifted_subject(source, out, pose_noise: dict | None = None):
+    """A copy of ``source`` whose stored root translations are off by POSE_SHIFT, stating
+    ``pose_noise`` in its meta.json when given."""
+    import shutil
+
+    shutil.copytree(source, out)
+    poses = dict(np.load(out / "poses.npz"))
+    poses["translation"] = poses["translation"] + POSE_SHIFT
+    np.savez(out / "poses.npz", **poses)
+    if pose_noise is not None:
+        meta = json.loads((out / "meta.json").read_text())
+        (out / "meta.json").write_text(json.dumps({**meta, "pose_noise": pose_noise}))
+    return out
+
+
+def shift_left(corrections, data: TrainingData) -> float:
+    """The largest remaining translation error (metres) of the data's frames after ``corrections``."""
+    keys = torch.tensor([data.load(0, i).frame_key for i in data.images[0]])
+    return float((torch.from_numpy(POSE_SHIFT) + corrections.translation[keys]).norm(dim=1).max())
+
+
 def test_test_time_pose_refinement_moves_shifted_poses_back(tiny_dataset, prior_file, tmp_path):
     """The test frames' stored translations shifted by POSE_SHIFT: refining them against their images
     (avatar frozen) brings them closer to the poses the images were rendered with, and the
     evaluation's PSNR rises; the avatar's parameters are untouched."""
-    import shutil
-
     from pghm.train.evaluate import evaluate
     from pghm.train.test_poses import refine_test_poses
 
     avatar = tiny_avatar(tiny_dataset / "subject_000", prior_file, tmp_path / "a.pt", 4, 4)
-    shifted = tmp_path / "shifted"
-    shutil.copytree(tiny_dataset / "subject_000", shifted)
-    poses = dict(np.load(shifted / "poses.npz"))
-    poses["translation"] = poses["translation"] + POSE_SHIFT
-    np.savez(shifted / "poses.npz", **poses)
+    shifted = shifted_subject(tiny_dataset / "subject_000", tmp_path / "shifted")
     data = TrainingData(shifted, split="test")
     before = [p.detach().clone() for p in avatar.model.parameters()]
     corrections = refine_test_poses(avatar, data, steps=REFINE_STEPS, progress=False)
     assert all(torch.equal(a, b) for a, b in zip(before, avatar.model.parameters()))
-    keys = torch.tensor([data.load(0, i).frame_key for i in data.images[0]])
-    left = torch.from_numpy(POSE_SHIFT) + corrections.translation[keys]
-    assert float(left.norm(dim=1).max()) < 0.85 * float(np.linalg.norm(POSE_SHIFT))
+    assert shift_left(corrections, data) < 0.85 * float(np.linalg.norm(POSE_SHIFT))
     stored = evaluate(avatar, shifted).summary()["psnr"]
     refined = evaluate(avatar, shifted, refine_poses=REFINE_STEPS).summary()["psnr"]
     assert refined > stored + 0.5
+
+
+def test_refinement_moves_poses_further_when_the_subject_states_them_noisier(tiny_dataset, prior_file, tmp_path):
+    """The same shifted poses, stated with the shift's own scale (8 cm, as a capture states its
+    error) rather than the synthetic 1 cm: the prior holds the corrections back less, and the
+    refinement removes more of the shift."""
+    from pghm.train.test_poses import refine_test_poses
+
+    avatar = tiny_avatar(tiny_dataset / "subject_000", prior_file, tmp_path / "a.pt", 4, 4)
+    left = {}
+    for name, noise in (("default", None), ("stated", {"rotation_std_deg": 2.0, "translation_std_m": 0.08})):
+        data = TrainingData(shifted_subject(tiny_dataset / "subject_000", tmp_path / name, noise), split="test")
+        left[name] = shift_left(refine_test_poses(avatar, data, steps=REFINE_STEPS, progress=False), data)
+    assert left["stated"] < 0.8 * left["default"], left
 
 
 def test_learning_rate_ten_times_too_high_leaves_no_nan(tiny_dataset, tmp_path, caplog):
