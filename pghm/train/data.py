@@ -229,6 +229,11 @@ class TrainingData:
             rotation[start:end], translation[start:end] = r, t
         return rotation, translation
 
+    def pose_corrections(self, body: BodyModel) -> PoseCorrections:
+        """Zero corrections of the estimated joints of every frame, their prior as wide as each
+        frame's stated noise (:meth:`pose_sigmas`)."""
+        return PoseCorrections.of_estimated_joints(self.num_frames, body, self.pose_sigmas())
+
     def load(self, identity: int, image_index: int) -> Sample:
         """Read one image and its annotations."""
         subject = self.subjects[identity]

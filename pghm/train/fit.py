@@ -22,7 +22,7 @@ from pghm.io.avatar import Avatar, load_avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig
 from pghm.model.pghm import COMPONENTS
 from pghm.train.background import TRAINING_BACKGROUND
-from pghm.train.data import PoseCorrections, TrainingData
+from pghm.train.data import TrainingData
 from pghm.train.loop import (
     AvatarObjective,
     LoopConfig,
@@ -164,9 +164,7 @@ def fit(
         p.requires_grad_(False)
     geometries = GeometryCache(data, model.config, config.body_model_path)
     latent = nn.Parameter(initial_latent(model))
-    corrections = None
-    if config.refine_poses:
-        corrections = PoseCorrections.of_estimated_joints(data.num_frames, geometries.body, data.pose_sigmas())
+    corrections = data.pose_corrections(geometries.body) if config.refine_poses else None
     lpips, lpips_line = lpips_for(config.lpips)
     objective = AvatarObjective(model, latent, corrections, config.stage1.loss, lpips)
     ckpt = checkpoint_path(out)

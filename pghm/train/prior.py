@@ -21,7 +21,7 @@ from pghm.model import PGHM, ModelConfig, subject_geometry
 from pghm.model.geometry import SubjectGeometry
 from pghm.train import distributed
 from pghm.train.background import SILHOUETTE_WEIGHT, TRAINING_BACKGROUND
-from pghm.train.data import PoseCorrections, TrainingData
+from pghm.train.data import TrainingData
 from pghm.train.loop import (
     AvatarObjective,
     LoopConfig,
@@ -131,9 +131,7 @@ def train_prior(
     check_step_memory(data, config.loop, "train-prior")
     geometries = GeometryCache(data, config.model, config.body_model_path)
     model = initial_model(config.model, data.num_identities, config.loop.seed)
-    corrections = None
-    if config.refine_poses:
-        corrections = PoseCorrections.of_estimated_joints(data.num_frames, geometries.body, data.pose_sigmas())
+    corrections = data.pose_corrections(geometries.body) if config.refine_poses else None
     lpips, lpips_line = lpips_for(config.lpips)
     objective = AvatarObjective(model, None, corrections, config.loop.loss, lpips)
     bank = [model.identity_bank]

@@ -56,7 +56,7 @@ def refine_test_poses(
     """
     body = load_body(avatar.body_name, body_model_path)
     geometry = avatar_geometry(avatar, body_model_path=body_model_path)
-    corrections = PoseCorrections.of_estimated_joints(data.num_frames, body, data.pose_sigmas())
+    corrections = data.pose_corrections(body)
     weights = FitConfig().stage2.loss  # the fit's own loss, so a frozen avatar sees the same objective
     model = avatar.model.eval()
     frozen = [p for p in model.parameters() if p.requires_grad]
