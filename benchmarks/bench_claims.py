@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from common import DOCS, setup_threads
+from common import DOCS, THREADS, setup_threads
 
 from pghm.io.avatar import recorded_path
 from pghm.model import ModelConfig
@@ -125,8 +125,11 @@ def main() -> None:
     parser.add_argument("--work", required=True, help="folder for the runs' files and cached results")
     parser.add_argument("--quick", action="store_true", help="tiny budgets, to check the script end to end")
     parser.add_argument("--table", action="store_true", help="only rewrite docs/results.md from the cached runs")
+    parser.add_argument(
+        "--threads", type=int, default=THREADS, help=f"torch threads per run (default {THREADS}: the machine's cores)"
+    )
     args = parser.parse_args()
-    setup_threads()
+    setup_threads(args.threads)
     budget = (
         Budget(
             prior_steps=4,
@@ -339,8 +342,10 @@ def write_table(results: dict, args: argparse.Namespace, bent: list[int]) -> Non
         "# The paper's claims at CPU scale",
         "",
         "Produced by `python benchmarks/bench_claims.py "
-        f"--data {recorded_path(args.data)} --subject {recorded_path(args.subject)} --work {recorded_path(args.work)}`",
-        "on 2 CPU threads. Data: `pghm synth --config prior --seed 0` (16 identities x 8 views x 30 frames, 256 px)",
+        f"--data {recorded_path(args.data)} --subject {recorded_path(args.subject)} --work {recorded_path(args.work)}"
+        f"{'' if args.threads == THREADS else f' --threads {args.threads}'}`",
+        f"on {args.threads} CPU thread(s) per run. Data: `pghm synth --config prior --seed 0`",
+        "(16 identities x 8 views x 30 frames, 256 px)",
         "and a held-out subject `pghm synth --config mono --seed 1` (100 monocular training frames at 512 x 384;",
         "metrics on its held-out novel-pose frames, whole images on white, rendered with the exact poses so that",
         "appearance is measured apart from the 2-degree pose noise of the estimates).",
