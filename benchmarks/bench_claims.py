@@ -40,6 +40,8 @@ NOVEL_POSE = "test_novel_pose"
 BENT_DEGREES = 45.0
 """A held-out frame counts as "bent" when an elbow or knee is flexed more than this."""
 BENT_JOINTS = ("left_elbow", "right_elbow", "left_knee", "right_knee")
+NOTES_MARKER = "<!-- measured notes: kept when bench_claims rewrites the tables above -->"
+"""docs/results.md from this line on is prose about the runs, which a rewrite of the tables keeps."""
 
 
 @dataclass
@@ -406,7 +408,10 @@ def write_table(results: dict, args: argparse.Namespace, bent: list[int]) -> Non
         lines.append("")
     lines += seed_table(results.get("seeds", {}), k)
     lines += scale_table(results, budget)
-    (DOCS / "results.md").write_text("\n".join(lines))
+    results_md = DOCS / "results.md"
+    kept = results_md.read_text().partition(NOTES_MARKER) if results_md.is_file() else ("", "", "")
+    notes = [kept[1] + kept[2]] if kept[1] else []
+    results_md.write_text("\n".join(lines + notes))
     print("\n".join(lines))
 
 
