@@ -152,9 +152,12 @@ def test_interrupted_capture_leaves_nothing(tmp_path, monkeypatch):
     assert list((tmp_path / "out").iterdir()) == []
 
 
-@pytest.mark.parametrize(("options", "mirror_pass"), [((), True), (("--no-mirror-pass",), False)])
-def test_no_mirror_pass_reaches_the_config(tmp_path, capsys, monkeypatch, options, mirror_pass):
-    """The front end's mirrored pass is on by default; --no-mirror-pass turns it off."""
+@pytest.mark.parametrize(
+    ("options", "mirror_pass", "pose_prior"),
+    [((), True, True), (("--no-mirror-pass",), False, True), (("--no-pose-prior",), True, False)],
+)
+def test_switches_reach_the_config(tmp_path, capsys, monkeypatch, options, mirror_pass, pose_prior):
+    """The mirrored pass and the learned pose prior are on by default; each --no-... turns one off."""
     import pghm.capture.pipeline
 
     seen = []
@@ -162,4 +165,5 @@ def test_no_mirror_pass_reaches_the_config(tmp_path, capsys, monkeypatch, option
     video = tmp_path / "clip.mp4"
     video.write_bytes(b"")  # never read: capture is replaced
     code, _ = run_capture(tmp_path, capsys, video, *options)
-    assert code == 0 and len(seen) == 1 and seen[0].mirror_pass is mirror_pass
+    assert code == 0 and len(seen) == 1
+    assert seen[0].mirror_pass is mirror_pass and seen[0].pose_prior is pose_prior

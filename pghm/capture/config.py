@@ -77,6 +77,12 @@ class CaptureConfig:
     mirrored back, with the original's (flip test-time augmentation,
     :func:`pghm.capture.frontend.fuse_mirrored`; pass 2 only, one more MediaPipe call a frame)."""
 
+    pose_prior: bool = True
+    """Hold the body fit's poses to how people move, with the pose prior learned from motion
+    capture (:mod:`pghm.capture.pose_prior`; its weight is ``body.weight_motion_prior``). Off, the
+    fit keeps only its per-joint L2 prior and joint limits: for motions far from the clips it
+    was learned from (walking, sitting), such as dancing."""
+
     progress: bool = True
     """A tqdm bar per stage on stderr."""
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -242,6 +242,8 @@ def _write(folder: Path, config: CaptureConfig, front: FrontEnd) -> None:
 
     observations = front.observations
     body_config = config.body or BodyFitConfig()
+    if not config.pose_prior:
+        body_config = replace(body_config, weight_motion_prior=0.0)
     fit = fit_body(observations, body_config)
     n = len(observations.frame_index)
     train, test = split_indices(n, config.test_every)

@@ -35,6 +35,7 @@ def _capture(args: argparse.Namespace) -> int:
         focal_px=args.focal,
         test_every=args.test_every,
         mirror_pass=not args.no_mirror_pass,
+        pose_prior=not args.no_pose_prior,
         progress=not args.quiet,
     )
     out = capture(args.input, args.out, config)
@@ -86,6 +87,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--no-mirror-pass",
         action="store_true",
         help="skip the landmark model's second pass on the mirrored frames (a faster front end, less accurate joints)",
+    )
+    parser.add_argument(
+        "--no-pose-prior",
+        action="store_true",
+        help="fit the body without the pose prior learned from motion capture (walking, sitting); "
+        "for motions far from those, such as dancing",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.set_defaults(func=_capture)
