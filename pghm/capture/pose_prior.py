@@ -27,6 +27,7 @@ rebuilds it). What it does, measured: docs/capture.md, "A pose prior from motion
 
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -34,6 +35,8 @@ from pathlib import Path
 import numpy as np
 import torch
 from torch import Tensor
+
+from pghm.io.atomic import atomic_write_bytes
 
 POSE_PRIOR_FILE = Path(__file__).with_name("pose_prior.npz")
 """The shipped prior (built from the two clips of ``assets/motion``)."""
@@ -132,8 +135,9 @@ def build_pose_prior(
 
 
 def save_pose_prior(prior: PosePrior, path: str | Path) -> None:
+    buffer = io.BytesIO()
     np.savez(
-        path,
+        buffer,
         joints=np.array(prior.joints),
         mean=prior.mean,
         covariance=prior.covariance,
@@ -141,6 +145,7 @@ def save_pose_prior(prior: PosePrior, path: str | Path) -> None:
         sources=np.array(prior.sources),
         frames=np.array(prior.frames),
     )
+    atomic_write_bytes(path, buffer.getvalue())
 
 
 @lru_cache(maxsize=4)
