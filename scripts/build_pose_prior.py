@@ -14,13 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
-from pghm.body import load_body
+from pghm.body import BodyModel, load_body
 from pghm.capture.bodyfit import FITTED_JOINTS, hinge_axes
 from pghm.capture.pose_prior import POSE_PRIOR_FILE, build_pose_prior, project_hinges, save_pose_prior
 from pghm.data.retarget import import_bvh
 
 
-def clip_rotations(path: Path, body) -> np.ndarray:
+def clip_rotations(path: Path, body: BodyModel) -> np.ndarray:
     """(F, J, 3) rotations of FITTED_JOINTS in the clip at ``path``, hinges projected."""
     rotations = np.asarray(import_bvh(path, body).rotations, dtype=np.float64)
     bones = [body.joint_map[name] for name in FITTED_JOINTS]
