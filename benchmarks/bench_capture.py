@@ -50,6 +50,7 @@ from PIL import Image
 
 from pghm.capture.crop import Region, crop_intrinsics, from_region
 from pghm.data.subject import Subject, check, read_mask
+from pghm.data.synth.poses import MOTION_KINDS
 from pghm.data.synth.video import WalkTruth, graded_background, render_walk_video, walk_config
 
 TARGETS = {
@@ -438,15 +439,19 @@ def plot_metrics(rows: list[dict], path: Path) -> None:
 # ------------------------------------------------------------------ main
 
 
-def capture_case(work: Path, seed: int, kind: str, frames: int, fit: bool) -> tuple[dict, np.ndarray]:
+def capture_case(
+    work: Path, seed: int, kind: str, frames: int, fit: bool, motion: str = "walk"
+) -> tuple[dict, np.ndarray]:
     """Video, capture, metrics (and the fits with ``fit``) of one seed x background: the row and its tiles."""
-    video = work / f"{kind}_{seed}_{frames}f.mp4"
-    config = walk_config(frames, *SIZE)
+    name = f"{kind}_{seed}_{frames}f" if motion == "walk" else f"{motion}_{kind}_{seed}_{frames}f"
+    video = work / f"{name}.mp4"
+    config = walk_config(frames, *SIZE, motion=motion)
     truth = render_walk_video(config, seed, video, background(kind, seed, *SIZE), progress=True)
-    subject_dir = work / f"{kind}_{seed}_{frames}f"
-    run = run_capture(video, subject_dir, work / f"{kind}_{seed}_{frames}f.log")
+    subject_dir = work / name
+    run = run_capture(video, subject_dir, work / f"{name}.log")
     comparison = measure(truth, subject_dir)
     row = {
+        "motion": motion,
         "background": kind,
         "seed": seed,
         "frames": frames,
@@ -542,6 +547,8 @@ def report(
     """Print the table and verdicts; write the JSON and (with rows) the figures."""
     if rows:
         columns = ["background", "seed", "kept", "iou", "mpjpe_mm", "pa_mpjpe_mm", "reproj_pct", "capture_s", "peak_gb"]
+        if any(r.get("motion", "walk") != "walk" for r in rows):
+            columns.insert(0, "motion")
         if any("psnr_gap_db" in r for r in rows):
             columns += ["psnr_gap_db", "psnr_gap_refined_db", "psnr_gap_all_db", "psnr_gap_all_refined_db"]
         print_table(rows, columns)
@@ -596,6 +603,13 @@ def main() -> int:
     parser.add_argument("--backgrounds", nargs="+", choices=BACKGROUNDS, default=list(BACKGROUNDS))
     parser.add_argument("--frames", type=int, default=100, help="frames per accuracy video (default %(default)s)")
     parser.add_argument(
+        "--motion",
+        choices=MOTION_KINDS,
+        default="walk",
+        help="what the person does: the targets are set for the walk; the others, on the spot, check the "
+        "body fit's pose prior on motions it was not learned from (default %(default)s)",
+    )
+    parser.add_argument(
         "--speed-frames",
         type=int,
         default=SPEED_FRAMES,
@@ -636,7 +650,7 @@ def main() -> int:
         rows, tiles, speed = [], [], None
         for seed in args.seeds:
             for kind in args.backgrounds:
-                row, tile = capture_case(work, seed, kind, args.frames, f"{kind}_{seed}" in fit_cases)
+                row, tile = capture_case(work, seed, kind, args.frames, f"{kind}_{seed}" in fit_cases, args.motion)
                 rows.append(row)
                 tiles.append(tile)
                 report(args, rows, tiles, speed, load_before)  # each case as it ends: a long run keeps what it measured

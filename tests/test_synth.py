@@ -377,3 +377,18 @@ def test_monocular_capture_holds_out_novel_poses_and_views(body, tmp_path):
         other = centres[index] - middle
         cosine = main_dir[[0, 2]] @ other[[0, 2]] / np.linalg.norm(main_dir[[0, 2]]) / np.linalg.norm(other[[0, 2]])
         assert cosine < np.cos(np.radians(30))
+
+
+def test_monocular_motion_on_the_spot(body):
+    """``mono_motion``: another motion kind instead of the walk, in place (the root moves only
+    vertically), seen by the same panning camera; the walk travels; an unknown kind is refused."""
+    from pghm.data.synth.video import walk_config
+
+    squat = plan_subject(walk_config(12, 48, 40, 64, motion="squat"), body, 0, 0)
+    walk = plan_subject(walk_config(12, 48, 40, 64), body, 0, 0)
+    assert squat.motion_sources == ["procedural:squat"] and walk.motion_sources[0].endswith("walk")
+    path = squat.arrays.translation_true[:, [0, 2]]
+    assert np.abs(path).max() == 0 and np.ptp(squat.arrays.translation_true[:, 1]) > 0.05
+    assert np.linalg.norm(walk.arrays.translation_true[-1, [0, 2]] - walk.arrays.translation_true[0, [0, 2]]) > 0.3
+    with pytest.raises(PghmError, match="mono_motion"):
+        walk_config(12, motion="cartwheel")

@@ -91,6 +91,11 @@ class SynthConfig:
     walk_laps: float = 1.0
     """Monocular: turns around the circle during the training frames (1: every side seen once)."""
 
+    mono_motion: str = "walk"
+    """Monocular: what the training frames show: "walk" (around the circle) or another of
+    :data:`~pghm.data.synth.poses.MOTION_KINDS` performed on the spot at the circle's centre
+    (capture-bench's check that the body fit's pose prior does not hurt other motions)."""
+
     pose_noise_deg: float = 2.0
     """Standard deviation of the estimator noise per axis-angle component of every
     canonical joint's rotation, degrees. The images use the exact poses."""
@@ -145,6 +150,7 @@ class SynthConfig:
             (0 < self.fill <= 1, "fill must be in (0, 1]"),
             (self.mono_distance > 1.5, "mono_distance must be > 1.5 m"),
             (self.walk_laps > 0, "walk_laps must be > 0"),
+            (self.mono_motion in MOTION_KINDS, f"mono_motion must be one of {', '.join(MOTION_KINDS)}"),
             (self.pose_noise_deg >= 0 and self.translation_noise_m >= 0, "noise levels must be >= 0"),
             (1 <= self.msaa_samples <= 16, "msaa_samples must be 1 to 16"),
             (0 <= self.png_compression <= 9, "png_compression must be 0 to 9"),

@@ -241,7 +241,22 @@ def _monocular_plan(config: SynthConfig, body: BodyModel, seed: int, index: int)
     joints, marks = _shape_landmarks(body, identity)
     train, walk_test = config.frames, config.test_frames // 2
     other_test = config.test_frames - walk_test
-    rotations, translation, walk_source = _walk_in_circle(config, body, identity, joints, train + walk_test, motion_rng)
+    if config.mono_motion == "walk":
+        rotations, translation, walk_source = _walk_in_circle(
+            config, body, identity, joints, train + walk_test, motion_rng
+        )
+    else:
+        rotations, translation, walk_source = motion_clip(
+            config.mono_motion,
+            body,
+            _shape(identity),
+            joints,
+            train + walk_test,
+            config.fps,
+            motion_rng,
+            config.procedural_motions,
+        )
+        translation = translation * np.array([0.0, 1.0, 0.0])  # on the spot: only the height moves
     sources = [walk_source]
     path = translation[:train, [0, 2]]
     middle = 0.5 * (path.min(0) + path.max(0))

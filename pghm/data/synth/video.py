@@ -59,11 +59,14 @@ class WalkTruth:
     fps: float
 
 
-def walk_config(frames: int, width: int = 512, height: int = 384, texture_size: int = 1024) -> SynthConfig:
+def walk_config(
+    frames: int, width: int = 512, height: int = 384, texture_size: int = 1024, motion: str = "walk"
+) -> SynthConfig:
     """The "mono" preset as one continuous walk of ``frames`` frames (no test images).
 
     The walk keeps the preset's geometry (circle radius, framing) whatever its length: it
-    turns once per preset length of frames.
+    turns once per preset length of frames. ``motion``: another of the generator's motion kinds
+    instead of the walk, performed on the spot (``SynthConfig.mono_motion``).
     """
     mono = PRESETS["mono"]
     return replace(
@@ -75,6 +78,7 @@ def walk_config(frames: int, width: int = 512, height: int = 384, texture_size: 
         width=width,
         height=height,
         texture_size=texture_size,
+        mono_motion=motion,
     ).validate()
 
 
