@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from pghm.body import BodyPose, load_body
+from pghm.body import load_body
 from pghm.capture.bodyfit import FITTED_JOINTS, hinge_axes
+from pghm.capture.metrics import camera_joints, mapped_joints
 from pghm.capture.pose_prior import (
     PosePrior,
     build_pose_prior,
@@ -31,12 +32,11 @@ def anny():
 
 def _canonical_joints(body, rotations: np.ndarray) -> np.ndarray:
     """(F, J, 3) posed positions of FITTED_JOINTS for (F, J, 3) rotations of them, the rest at rest."""
-    full = torch.zeros(len(rotations), body.num_bones, 3)
-    full[:, [body.joint_map[n] for n in FITTED_JOINTS]] = torch.as_tensor(rotations, dtype=torch.float32)
-    rest = body.rest()
-    transforms = body.bone_transforms(BodyPose(full, torch.zeros(len(rotations), 3)), rest.joints)
-    joints = torch.einsum("fjab,jb->fja", transforms[..., :3, :3], rest.joints) + transforms[..., :3, 3]
-    return joints[:, [body.joint_map[n] for n in FITTED_JOINTS]].numpy()
+    full = np.zeros((len(rotations), body.num_bones, 3))
+    full[:, [body.joint_map[n] for n in FITTED_JOINTS]] = rotations
+    joints = camera_joints(body, body.default_shape().numpy(), full, np.zeros((len(full), 3)), np.eye(4))
+    names, _ = mapped_joints(body)
+    return joints[:, [names.index(n) for n in FITTED_JOINTS]]
 
 
 def test_mirror_reflects_forward_kinematics(anny):

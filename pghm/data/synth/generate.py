@@ -228,6 +228,22 @@ def _walk_in_circle(
     return rotations, translation, source
 
 
+def _on_the_spot(
+    kind: str,
+    config: SynthConfig,
+    body: BodyModel,
+    identity: Identity,
+    joints: torch.Tensor,
+    frames: int,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray, str]:
+    """A clip of ``kind`` performed in place: its root moves only vertically (then placed by the caller)."""
+    rotations, translation, source = motion_clip(
+        kind, body, _shape(identity), joints, frames, config.fps, rng, config.procedural_motions
+    )
+    return rotations, translation * np.array([0.0, 1.0, 0.0]), source
+
+
 def _monocular_plan(config: SynthConfig, body: BodyModel, seed: int, index: int) -> SubjectPlan:
     """A subject walking a circle before one slowly panning camera, plus test images.
 
@@ -242,32 +258,21 @@ def _monocular_plan(config: SynthConfig, body: BodyModel, seed: int, index: int)
     train, walk_test = config.frames, config.test_frames // 2
     other_test = config.test_frames - walk_test
     if config.mono_motion == "walk":
-        rotations, translation, walk_source = _walk_in_circle(
-            config, body, identity, joints, train + walk_test, motion_rng
-        )
+        rotations, translation, source = _walk_in_circle(config, body, identity, joints, train + walk_test, motion_rng)
     else:
-        rotations, translation, walk_source = motion_clip(
-            config.mono_motion,
-            body,
-            _shape(identity),
-            joints,
-            train + walk_test,
-            config.fps,
-            motion_rng,
-            config.procedural_motions,
+        rotations, translation, source = _on_the_spot(
+            config.mono_motion, config, body, identity, joints, train + walk_test, motion_rng
         )
-        translation = translation * np.array([0.0, 1.0, 0.0])  # on the spot: only the height moves
-    sources = [walk_source]
+    sources = [source]
     path = translation[:train, [0, 2]]
     middle = 0.5 * (path.min(0) + path.max(0))
     radius = float(np.linalg.norm(path - middle, axis=1).max())
     centre = np.array([middle[0], marks.centre_height, middle[1]])
     if other_test:
         kind = NOVEL_POSE_KINDS[int(motion_rng.integers(len(NOVEL_POSE_KINDS)))]
-        extra_rot, extra_trans, extra_source = motion_clip(
-            kind, body, _shape(identity), joints, other_test, config.fps, motion_rng, config.procedural_motions
+        extra_rot, extra_trans, extra_source = _on_the_spot(
+            kind, config, body, identity, joints, other_test, motion_rng
         )
-        extra_trans = extra_trans * np.array([0.0, 1.0, 0.0])
         ground = np.array([middle[0], 0.0, middle[1]])
         facing = np.full(other_test, motion_rng.uniform(-0.5, 0.5))
         extra_rot, extra_trans = place_on_path(extra_rot, extra_trans, facing, np.repeat(ground[None], other_test, 0))
