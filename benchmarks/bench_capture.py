@@ -12,8 +12,10 @@ c. 2D error of the canonical joints projected by each camera, in source-video pi
    % of the person's height in that frame (the true mask's extent): <= 2 %;
 d. with ``--fit``: ``pghm fit`` (defaults, assets/prior.pt) on the captured subject and on
    the same subject with the true poses and cameras (the capture's images, masks, crop and
-   split), each evaluated on the same test images: the captured one within 1.5 dB PSNR; and
-   again with each test frame's pose first refined against its image (``pghm eval
+   split), each evaluated on the same test images: the captured one within 1.5 dB PSNR; again
+   with the poses the captured fit learned for the video (``pghm eval --fit-poses``; the
+   reference keeps its true poses); and
+   with each test frame's pose first refined against its image (``pghm eval
    --refine-poses``, both sides). A third fit, on the true masks as well (the images
    composited through them), gives the stricter gap that includes the masks' error (a);
 e. speed and memory of the pipeline on a 300-frame 512-px video (a child process running
@@ -60,6 +62,7 @@ TARGETS = {
     "pa_mpjpe_mm": 50.0,
     "reproj_pct": 2.0,
     "psnr_gap_db": 1.5,
+    "psnr_gap_track_db": 1.5,
     "psnr_gap_refined_db": 1.5,
     "seconds_300": 120.0,
     "peak_gb": 2.0,
@@ -332,17 +335,18 @@ REFINE_STEPS = 30
 
 
 def fit_and_eval(subject_dir: Path, avatar: Path) -> dict:
-    """``pghm fit`` (defaults, the shipped prior) then ``pghm eval --split test`` twice: with the
-    stored poses, and with them refined against the test images (the avatar frozen); summaries and seconds."""
+    """``pghm fit`` (defaults, the shipped prior) then ``pghm eval --split test`` three times: with
+    the stored poses, with the fit's pose track (``--fit-poses``), and with the poses refined
+    against the test images (the avatar frozen); summaries and seconds."""
     started = time.perf_counter()
     pghm = [sys.executable, "-m", "pghm.cli.main"]
     subprocess.run([*pghm, "fit", str(subject_dir), "--prior", str(PRIOR), "--out", str(avatar)], check=True)
     fit_seconds = time.perf_counter() - started
     out = {"fit_seconds": round(fit_seconds, 1)}
-    for name, refine in (("", 0), ("refined_", REFINE_STEPS)):
+    for name, poses in (("", []), ("track_", ["--fit-poses"]), ("refined_", ["--refine-poses", str(REFINE_STEPS)])):
         report = avatar.with_suffix(f".{name}eval.json")
         evaluate = [*pghm, "eval", str(avatar), str(subject_dir), "--split", "test", "--report", str(report)]
-        subprocess.run([*evaluate, "--refine-poses", str(refine)], check=True)
+        subprocess.run([*evaluate, *poses], check=True)
         summary = json.loads(report.read_text())["mean"]
         out.update({f"{name}psnr": float(summary["psnr"]), f"{name}ssim": float(summary["ssim"])})
     return out
@@ -469,6 +473,8 @@ def capture_case(
             row["fit"][f"true_{name}"] = fit_and_eval(reference, work / f"{kind}_{seed}_true_{name}.pt")
         captured, poses, every = (row["fit"][k] for k in ("captured", "true_poses", "true_all"))
         row["psnr_gap_db"] = round(poses["psnr"] - captured["psnr"], 2)
+        # Against the reference's own poses: they are the true ones, its track corrects only noise.
+        row["psnr_gap_track_db"] = round(poses["psnr"] - captured["track_psnr"], 2)
         row["psnr_gap_refined_db"] = round(poses["refined_psnr"] - captured["refined_psnr"], 2)
         row["psnr_gap_all_db"] = round(every["psnr"] - captured["psnr"], 2)
         row["psnr_gap_all_refined_db"] = round(every["refined_psnr"] - captured["refined_psnr"], 2)
@@ -532,8 +538,8 @@ def verdicts(rows: list[dict], speed: dict | None) -> dict[str, bool]:
             out[key] = all(r[key] <= TARGETS[key] for r in rows)
     fitted = [r for r in rows if "psnr_gap_db" in r]
     if fitted:
-        for key in ("psnr_gap_db", "psnr_gap_refined_db"):
-            if all(key in r for r in fitted):  # a combined earlier run may lack the refined gap
+        for key in ("psnr_gap_db", "psnr_gap_track_db", "psnr_gap_refined_db"):
+            if all(key in r for r in fitted):  # a combined earlier run may lack the later gaps
                 out[key] = all(r[key] <= TARGETS[key] for r in fitted)
     if speed is not None:
         out["seconds_300"] = speed["seconds"] <= TARGETS["seconds_300"]
@@ -550,7 +556,8 @@ def report(
         if any(r.get("motion", "walk") != "walk" for r in rows):
             columns.insert(0, "motion")
         if any("psnr_gap_db" in r for r in rows):
-            columns += ["psnr_gap_db", "psnr_gap_refined_db", "psnr_gap_all_db", "psnr_gap_all_refined_db"]
+            columns += ["psnr_gap_db", "psnr_gap_track_db", "psnr_gap_refined_db", "psnr_gap_all_db"]
+            columns += ["psnr_gap_all_refined_db"]
         print_table(rows, columns)
         figure = figure_name(args.results)
         Image.fromarray(np.concatenate(tiles, axis=0)).save(DOCS / f"{figure}_frames.png")

@@ -147,6 +147,38 @@ def test_wrong_shapes_dtypes_and_nan(tmp_path):
     expect_error(write_payload(tmp_path / "m.pt", weights=weights), "do not match")
 
 
+def good_track() -> dict:
+    return {
+        "frames": torch.tensor([0, 1, 3]),
+        "bones": torch.tensor([2, 5]),
+        "rotations": torch.randn(3, 2, 3),
+        "translation": torch.randn(3, 3),
+        "poses": "0" * 64,
+    }
+
+
+def test_pose_track_round_trip_and_bad_tracks(tmp_path):
+    """A fit's pose track comes back as saved; every malformed one is one line naming it."""
+    track = good_track()
+    loaded = load_avatar(write_payload(tmp_path / "a.pt", pose_track=track)).pose_track
+    for name in ("frames", "bones", "rotations", "translation"):
+        assert torch.equal(getattr(loaded, name), track[name])
+    assert loaded.poses == track["poses"] and load_avatar(write_payload(tmp_path / "b.pt")).pose_track is None
+    cases = {
+        "not_a_dict": ([1, 2], "must hold frames"),
+        "missing": ({k: v for k, v in track.items() if k != "bones"}, "must hold frames"),
+        "descending": ({**track, "frames": torch.tensor([3, 1, 0])}, "ascending"),
+        "repeated": ({**track, "frames": torch.tensor([0, 1, 1])}, "distinct"),
+        "float_frames": ({**track, "frames": torch.tensor([0.0, 1.0, 3.0])}, "int64"),
+        "negative_bone": ({**track, "bones": torch.tensor([-1, 5])}, "non-negative"),
+        "rotations_shape": ({**track, "rotations": torch.randn(3, 3, 3)}, "pose_track.rotations' has shape"),
+        "translation_nan": ({**track, "translation": torch.full((3, 3), float("nan"))}, "non-finite"),
+        "digest": ({**track, "poses": 7}, "digest"),
+    }
+    for name, (value, match) in cases.items():
+        expect_error(write_payload(tmp_path / f"{name}.pt", pose_track=value), match)
+
+
 class RunsCode:
     """Unpickling this object would create a marker file."""
 

@@ -164,6 +164,12 @@ def register(subparsers) -> None:
         "(test-time pose refinement, for estimated poses such as a capture's); 0: off (default %(default)s)",
     )
     evaluate.add_argument(
+        "--fit-poses",
+        action="store_true",
+        help="render with the poses the avatar's fit learned for its video: the training frames' corrections, "
+        "interpolated onto the held-out frames between them (no held-out image is used)",
+    )
+    evaluate.add_argument(
         "--background",
         type=parse_colour,
         default=WHITE,
@@ -260,6 +266,7 @@ def run_eval(args: argparse.Namespace) -> int:
         true_poses=args.true_poses,
         background=args.background,
         refine_poses=args.refine_poses,
+        fit_poses=args.fit_poses,
     )
     print(json.dumps(result.summary()))
     print(f"wrote {report} and {strip}")

@@ -26,6 +26,7 @@ one image or mask at a time.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import math
@@ -110,6 +111,15 @@ class SubjectArrays:
 
     def __len__(self) -> int:
         return len(self.K)
+
+    def poses_digest(self) -> str:
+        """SHA-256 (hex) of the stored poses and their frame numbers: names the poses that
+        corrections learned on them (an avatar's pose track) apply to."""
+        digest = hashlib.sha256()
+        frames = self.frame_index if self.frame_index is not None else np.arange(len(self.rotations))
+        for array in (frames.astype(np.int64), self.rotations.astype(np.float32), self.translation.astype(np.float32)):
+            digest.update(np.ascontiguousarray(array).tobytes())
+        return digest.hexdigest()
 
 
 def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:

@@ -10,6 +10,7 @@ One versioned file holding everything needed to rebuild and drive an avatar:
     latent      (1, C, L, L) full-resolution identity latent of an avatar (None for a prior)
     weights     the network's state dict (the bank is ``identity_bank``, (n, C, L', L'))
     metadata    training record: data, steps, seconds, metrics (plain JSON-like values)
+    pose_track  optional: the pose corrections a fit learned for its video (:class:`PoseTrack`)
 
 Files are read with ``torch.load(weights_only=True)``: only tensors and plain containers
 can come back, so opening an untrusted avatar never runs code. Every problem — a
@@ -42,6 +43,25 @@ KINDS = ("avatar", "prior")
 
 
 @dataclass
+class PoseTrack:
+    """The pose corrections ``pghm fit`` learned for the frames of its subject (:mod:`pghm.train.pose_track`).
+
+    Attributes:
+        frames: (F,) int64 frame numbers (the subject's ``frame_index``) of the trained frames, ascending.
+        bones: (K,) int64 the corrected bones.
+        rotations: (F, K, 3) axis-angle deltas added to the stored rotations of those bones.
+        translation: (F, 3) deltas added to the stored root translation.
+        poses: digest of the stored poses they correct (:meth:`pghm.data.subject.SubjectArrays.poses_digest`).
+    """
+
+    frames: Tensor
+    bones: Tensor
+    rotations: Tensor
+    translation: Tensor
+    poses: str
+
+
+@dataclass
 class Avatar:
     """A loaded avatar or prior.
 
@@ -53,6 +73,7 @@ class Avatar:
         shapes: (n, S) per-identity shapes of a prior, or None.
         latent: (1, C, L, L) personal latent of an avatar, or None for a prior.
         metadata: the training record.
+        pose_track: the corrections of its training video's poses, or None.
     """
 
     model: PGHM
@@ -62,6 +83,7 @@ class Avatar:
     shapes: Tensor | None = None
     latent: Tensor | None = None
     metadata: dict = field(default_factory=dict)
+    pose_track: PoseTrack | None = None
 
     def identity_map(self, index: int = 0) -> Tensor:
         """F (1, C, L, L): the personal latent of an avatar, or identity ``index`` of a prior."""
@@ -142,6 +164,17 @@ def avatar_payload(avatar: Avatar) -> dict:
         "latent": None if avatar.latent is None else avatar.latent.detach().float().cpu(),
         "weights": {k: v.detach().cpu() for k, v in avatar.model.state_dict().items()},
         "metadata": _plain(avatar.metadata, "metadata"),
+        "pose_track": None if avatar.pose_track is None else _track_payload(avatar.pose_track),
+    }
+
+
+def _track_payload(track: PoseTrack) -> dict:
+    return {
+        "frames": track.frames.detach().long().cpu(),
+        "bones": track.bones.detach().long().cpu(),
+        "rotations": track.rotations.detach().float().cpu(),
+        "translation": track.translation.detach().float().cpu(),
+        "poses": track.poses,
     }
 
 
@@ -189,6 +222,34 @@ def _check_tensor(path: Path, name: str, value: object, shape: tuple[int, ...] |
     if not torch.isfinite(value).all():
         raise _fail(path, f"'{name}' has non-finite values")
     return value.float()
+
+
+def _check_indices(path: Path, name: str, value: object) -> Tensor:
+    """A (n,) int64 tensor of distinct, ascending, non-negative indices."""
+    if not isinstance(value, Tensor) or value.dtype != torch.int64 or value.dim() != 1:
+        raise _fail(path, f"'{name}' is not a (n,) int64 tensor")
+    if len(value) and (value.min() < 0 or (value.diff() <= 0).any()):
+        raise _fail(path, f"'{name}' must be distinct non-negative indices in ascending order")
+    return value
+
+
+def _load_track(path: Path, value: object) -> PoseTrack | None:
+    if value is None:
+        return None
+    keys = ("frames", "bones", "rotations", "translation", "poses")
+    if not isinstance(value, dict) or any(key not in value for key in keys):
+        raise _fail(path, f"'pose_track' must hold {', '.join(keys)}")
+    frames = _check_indices(path, "pose_track.frames", value["frames"])
+    bones = _check_indices(path, "pose_track.bones", value["bones"])
+    if not isinstance(value["poses"], str):
+        raise _fail(path, "'pose_track.poses' is not a digest string")
+    return PoseTrack(
+        frames=frames,
+        bones=bones,
+        rotations=_check_tensor(path, "pose_track.rotations", value["rotations"], (len(frames), len(bones), 3)),
+        translation=_check_tensor(path, "pose_track.translation", value["translation"], (len(frames), 3)),
+        poses=value["poses"],
+    )
 
 
 def load_avatar(path: str | Path) -> Avatar:
@@ -260,6 +321,7 @@ def load_avatar(path: str | Path) -> Avatar:
         shapes=shapes,
         latent=latent,
         metadata=metadata,
+        pose_track=_load_track(path, payload.get("pose_track")),
     )
 
 

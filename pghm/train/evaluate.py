@@ -28,6 +28,7 @@ import torch
 from PIL import Image
 from torch import Tensor
 
+from pghm.body import load_body
 from pghm.body.pose import BodyPose
 from pghm.errors import PghmError
 from pghm.io.atomic import atomic_write_bytes
@@ -38,6 +39,7 @@ from pghm.train.background import BLACK, WHITE, composite_render, composite_targ
 from pghm.train.data import PoseCorrections, Sample, TrainingData
 from pghm.train.losses import psnr, ssim
 from pghm.train.lpips import load_lpips, lpips_status
+from pghm.train.pose_track import track_corrections
 from pghm.train.test_poses import refine_test_poses
 
 ERROR_SCALE = 0.25
@@ -143,6 +145,7 @@ def evaluate(
     images: list[int] | None = None,
     background: tuple[float, float, float] = WHITE,
     refine_poses: int = 0,
+    fit_poses: bool = False,
 ) -> EvalResult:
     """Metrics of ``avatar`` on the ``split`` images of the subject; optional JSON and PNG outputs.
 
@@ -153,11 +156,20 @@ def evaluate(
         background: (r, g, b) in [0, 1] behind the render and the target (white: the paper's).
         refine_poses: steps of test-time pose refinement (:mod:`pghm.train.test_poses`) before
             rendering: the held-out frames' poses fitted to their images, the avatar frozen; 0: off.
+        fit_poses: render with the avatar's pose track (:mod:`pghm.train.pose_track`): the
+            corrections its fit learned on the training frames, interpolated onto the held-out
+            frames between them (no held-out image is looked at).
     """
     background = tuple(float(c) for c in background)
     avatar = avatar if isinstance(avatar, Avatar) else load_avatar(avatar)
     if avatar.kind != "avatar":
         raise PghmError("eval needs a personalised avatar (from pghm fit), not a prior")
+    if fit_poses and (refine_poses > 0 or true_poses):
+        raise PghmError("the fit's pose track is one choice of poses; give it without --refine-poses or --true-poses")
+    if fit_poses and avatar.pose_track is None:
+        raise PghmError(
+            "the avatar holds no pose track (fitted with --no-pose-refinement or --pose-smoothing, or by an older pghm)"
+        )
     data = TrainingData(subject_dir, split=split, true_poses=true_poses)
     if data.num_identities != 1:
         names = ", ".join(subject.directory.name for subject in data.subjects[:5])
@@ -173,7 +185,11 @@ def evaluate(
         if outside:
             raise PghmError(f"images {outside[:5]} are not in the subject's '{split}' split")
         indices = [int(i) for i in images]
-    corrections, refine_seconds = None, 0.0
+    corrections, refine_seconds, poses = None, 0.0, "exact (synthetic)" if true_poses else "as stored"
+    if fit_poses:
+        corrections, counts = track_corrections(avatar.pose_track, data, load_body(data.body_name, body_model_path))
+        poses = "the fit's pose track ({trained} frames trained on, {interpolated} interpolated, {stored} as stored)"
+        poses = poses.format(**counts)
     if refine_poses > 0:
         started = time.perf_counter()
         corrections = refine_test_poses(avatar, data, refine_poses, body_model_path, images=indices)
@@ -201,7 +217,7 @@ def evaluate(
             "avatar_metadata": avatar.metadata,
             "subject": recorded_path(subject_dir),
             "split": split,
-            "poses": "exact (synthetic)" if true_poses else "as stored",
+            "poses": poses,
             "pose_refinement": {"steps": refine_poses, "seconds": round(refine_seconds, 1)},
             "mean": result.summary(),
             "lpips": lpips_status(directories=False),

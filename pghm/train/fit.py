@@ -22,7 +22,7 @@ from pghm.io.avatar import Avatar, load_avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig
 from pghm.model.pghm import COMPONENTS
 from pghm.train.background import TRAINING_BACKGROUND
-from pghm.train.data import TrainingData
+from pghm.train.data import ESTIMATOR_ROTATION_SIGMA, TrainingData
 from pghm.train.loop import (
     AvatarObjective,
     LoopConfig,
@@ -36,6 +36,7 @@ from pghm.train.loop import (
 )
 from pghm.train.losses import LossWeights
 from pghm.train.optim import LazyAdam
+from pghm.train.pose_track import learned_track
 from pghm.train.prior import GeometryCache, checkpoint_path, config_record, lpips_for
 
 log = logging.getLogger(__name__)
@@ -48,6 +49,10 @@ FIT_POSE_PRIOR = 5e-4
 Without it the corrections drift along the camera's axis and at the extremities, where the image
 constrains them little; at 500 steps it lifts the prior fit by 0.16 dB and scratch by 1.1 dB on
 average over three seeds, and 2e-3 is already too strong (docs/training.md)."""
+
+POSE_LR = 1e-2
+"""Learning rate of the pose corrections for poses as noisy as the synthetic data's (2 degrees);
+:func:`pose_learning_rate` scales it to a subject's stated noise."""
 
 FIT_SILHOUETTE_WEIGHT = 4.0
 """Default weight of the silhouette term when fitting (the prior trains with 1.0,
@@ -84,8 +89,9 @@ class FitConfig:
     """Adam learning rate of the personal latent (both stages)."""
     network_lr: float = 2e-4
     """Adam learning rate of the U-Net in stage 2."""
-    pose_lr: float = 1e-2
-    """Adam learning rate of the per-frame pose corrections in stage 2 (lazy rows, as in the prior)."""
+    pose_lr: float | None = None
+    """Adam learning rate of the per-frame pose corrections in stage 2 (lazy rows, as in the
+    prior); None: :func:`pose_learning_rate` of the subject's stated pose noise."""
     refine_poses: bool = True
     pose_smoothing: float = 0.0
     """Standard deviation in frames of a Gaussian filter applied over time to the video's
@@ -98,6 +104,23 @@ class FitConfig:
     fits and slower viewing (docs/training.md, "Resolution, steps and image size")."""
     lpips: bool = True
     body_model_path: str | None = None
+
+
+def pose_learning_rate(rotation_sigma: float) -> float:
+    """The default learning rate of the pose corrections for poses stated ``rotation_sigma`` (radians) noisy:
+
+        lr = POSE_LR * min(1, sigma_0 / sigma),    sigma_0 = ESTIMATOR_ROTATION_SIGMA (2 degrees).
+
+    Adam moves a correction by about its learning rate at each of a frame's few visits (about
+    ten in 450 steps) whatever the gradient, and what pulls the coordinates an image barely
+    sees back is the Gaussian prior on the corrections, whose pull falls as 1 / sigma^2. A
+    capture states 9.5 degrees, so the same rate lets its corrections wander with the
+    gradients' noise: on a captured subject 3e-3 fits the training frames better than 1e-2
+    (rendered with their own corrected poses, 29.5 against 27.5 dB; the held-out frames gain about
+    0.5 dB; docs/capture.md, d), while the synthetic subjects (2 degrees) keep the rate they were
+    tuned at, and so does the shipped avatar.
+    """
+    return POSE_LR * min(1.0, ESTIMATOR_ROTATION_SIGMA / rotation_sigma)
 
 
 def initial_latent(model: PGHM) -> torch.Tensor:
@@ -137,11 +160,14 @@ def fit(
     """
     config = config or FitConfig()
     for name in ("latent_lr", "network_lr", "pose_lr"):
-        check_learning_rate(name, getattr(config, name))
+        if getattr(config, name) is not None:
+            check_learning_rate(name, getattr(config, name))
     out = Path(out)
     data = TrainingData(subject_dir, pose_smoothing=config.pose_smoothing)
     if data.num_identities != 1:
         raise PghmError(f"{subject_dir}: fit takes one subject folder, found {data.num_identities}")
+    if config.pose_lr is None:
+        config = replace(config, pose_lr=pose_learning_rate(data.pose_noise[0][0]))
     check_step_memory(data, config.stage1, "fit stage 1")
     check_step_memory(data, config.stage2, "fit stage 2")
     if isinstance(prior, ModelConfig):
@@ -217,6 +243,8 @@ def fit(
             "final": state2.history[-1] if state2.history else {},
             "config": config_record(config),
         },
+        # Corrections of smoothed poses would not apply to the held-out frames' stored ones.
+        pose_track=learned_track(corrections, data) if corrections is not None and not config.pose_smoothing else None,
     )
     for p in model.parameters():
         p.requires_grad_(True)

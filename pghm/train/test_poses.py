@@ -28,7 +28,7 @@ from pghm.body import load_body
 from pghm.io.avatar import Avatar, avatar_geometry
 from pghm.train.background import TRAINING_BACKGROUND, draw_backgrounds
 from pghm.train.data import PoseCorrections, TrainingData
-from pghm.train.fit import FitConfig
+from pghm.train.fit import POSE_LR, FitConfig
 from pghm.train.loop import AvatarObjective
 
 log = logging.getLogger(__name__)
@@ -63,7 +63,7 @@ def refine_test_poses(
     for p in frozen:
         p.requires_grad_(False)
     objective = AvatarObjective(model, avatar.identity_map(), corrections, weights, lpips=None)
-    optimizer = torch.optim.Adam(corrections.parameters(), lr=FitConfig().pose_lr)
+    optimizer = torch.optim.Adam(corrections.parameters(), lr=POSE_LR)
     images = [int(i) for i in (data.images[0] if images is None else images)]
     # Read once: every step renders the same images.
     batches = [data.load_group(0, images[k : k + IMAGES_PER_BATCH]) for k in range(0, len(images), IMAGES_PER_BATCH)]

@@ -1,0 +1,131 @@
+"""The fit's pose track: bracketing in time, exact interpolation of a linear correction, the
+fit's record of it, eval with it undoing a known pose error; the pose learning rate."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+from conftest import TINY_MODEL
+
+from pghm.body import load_body
+from pghm.cli.main import main
+from pghm.errors import PghmError
+from pghm.io.avatar import load_avatar, save_avatar
+from pghm.model import ModelConfig
+from pghm.train.data import TrainingData
+from pghm.train.fit import FitConfig, fit
+from pghm.train.loop import LoopConfig
+from pghm.train.pose_track import bracket, learned_track, track_corrections
+
+SPLITS = {"train": [0, 1, 4, 5], "test": [2, 3], "own": [1]}
+"""The tiny subject's images are frames 0, 1, 2 seen by cameras 0 and 1: train on frames 0 and 2,
+hold out frame 1 ("test", between them) and, as "own", a trained frame's image."""
+SHIFT = np.array([0.06, -0.04, 0.0], dtype=np.float32)
+"""A known error (metres) of the stored root translations: a few pixels of the tiny subject's 64."""
+
+
+def test_bracket_of_known_frames():
+    known = np.array([0, 1, 2, 4, 5, 10])
+    lower, upper, weight = bracket(known, np.array([1, 3, 7, 12, -1]), max_gap=3)
+    # 1 is known; 3 lies between 2 and 4 (halfway); 7 between 5 and 10, too far apart; 12 and -1 outside.
+    assert lower.tolist() == [1, 2, -1, -1, -1]
+    assert upper.tolist() == [1, 3, -1, -1, -1]
+    assert weight.tolist() == [0.0, 0.5, 0.0, 0.0, 0.0]
+    lower, upper, weight = bracket(np.array([10, 14]), np.array([11, 13]), max_gap=4)
+    assert (lower.tolist(), upper.tolist()) == ([0, 0], [1, 1]) and weight == pytest.approx([0.25, 0.75])
+
+
+@pytest.fixture
+def subject(tiny_dataset, tmp_path):
+    """The tiny subject_000 with :data:`SPLITS`."""
+    out = tmp_path / "subject"
+    shutil.copytree(tiny_dataset / "subject_000", out)
+    (out / "splits.json").write_text(json.dumps(SPLITS))
+    return out
+
+
+def test_a_correction_linear_in_time_is_carried_exactly(subject, body):
+    """Corrections c_f = f v learned on frames 0 and 2 give frame 1 exactly v; a trained frame's
+    other view takes its own."""
+    train = TrainingData(subject)
+    learned = train.pose_corrections(body)
+    v_rot, v_trans = torch.randn(len(learned.bones), 3) * 0.05, torch.tensor([0.01, -0.02, 0.03])
+    with torch.no_grad():
+        for frame in (0, 2):
+            learned.rotations[frame], learned.translation[frame] = frame * v_rot, frame * v_trans
+    track = learned_track(learned, train)
+    assert track.frames.tolist() == [0, 2]
+    held_out, counts = track_corrections(track, TrainingData(subject, split="test"), body)
+    assert counts == {"trained": 0, "interpolated": 1, "stored": 0}
+    torch.testing.assert_close(held_out.rotations[1], v_rot)
+    torch.testing.assert_close(held_out.translation[1], v_trans)
+    own, counts = track_corrections(track, TrainingData(subject, split="own"), body)
+    assert counts == {"trained": 1, "interpolated": 0, "stored": 0}
+    assert torch.equal(own.rotations[0], learned.rotations[0])
+
+
+def shifted(source, out):
+    """A copy of ``source`` with every stored root translation off by SHIFT."""
+    shutil.copytree(source, out)
+    poses = dict(np.load(out / "poses.npz"))
+    poses["translation"] = poses["translation"] + SHIFT
+    np.savez(out / "poses.npz", **poses)
+    return out
+
+
+def test_fit_records_its_track_and_eval_with_it_undoes_a_known_error(subject, tmp_path, capsys):
+    """A fit saves its track (round trip through the file); a track that cancels SHIFT on the
+    training frames renders the held-out frame exactly as the unshifted poses do."""
+    from pghm.train.evaluate import evaluate
+
+    stages = [LoopConfig(steps=n, images_per_shard=2, checkpoint_every=0) for n in (1, 2)]
+    config = FitConfig(stage1=stages[0], stage2=stages[1], lpips=False)
+    avatar = fit(subject, ModelConfig(**TINY_MODEL), tmp_path / "a.pt", config)
+    loaded = load_avatar(tmp_path / "a.pt")
+    assert loaded.pose_track.frames.tolist() == [0, 2]
+    for name in ("bones", "rotations", "translation"):
+        assert torch.equal(getattr(loaded.pose_track, name), getattr(avatar.pose_track, name))
+    assert loaded.pose_track.poses == TrainingData(subject).subjects[0].arrays.poses_digest()
+
+    moved = shifted(subject, tmp_path / "shifted")
+    track = learned_track(TrainingData(moved).pose_corrections(load_body("anny")), TrainingData(moved))
+    track.translation[:] = -torch.from_numpy(SHIFT)
+    avatar.pose_track = track
+    truth = evaluate(avatar, subject).summary()["psnr"]
+    assert evaluate(avatar, moved).summary()["psnr"] != pytest.approx(truth, abs=1e-2)
+    assert evaluate(avatar, moved, fit_poses=True).summary()["psnr"] == pytest.approx(truth, abs=1e-4)
+    with pytest.raises(PghmError, match="learned on other poses"):
+        evaluate(avatar, subject, fit_poses=True)
+    avatar.pose_track = None
+    with pytest.raises(PghmError, match="holds no pose track"):
+        evaluate(avatar, moved, fit_poses=True)
+    save_avatar(tmp_path / "untracked.pt", avatar)
+    capsys.readouterr()  # the fit's progress bars
+    assert main(["eval", str(tmp_path / "untracked.pt"), str(moved), "--fit-poses"]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert "no pose track" in line and not list(tmp_path.glob("untracked.pt.eval*"))
+
+
+def test_the_pose_learning_rate_follows_the_stated_noise(subject, tmp_path):
+    """sigma_0 / sigma times the synthetic data's rate, never above it; a fit of a subject that
+    states 8 degrees records a quarter of it."""
+    import math
+
+    from pghm.train.data import ESTIMATOR_ROTATION_SIGMA
+    from pghm.train.fit import POSE_LR, pose_learning_rate
+
+    assert pose_learning_rate(ESTIMATOR_ROTATION_SIGMA) == POSE_LR
+    assert pose_learning_rate(ESTIMATOR_ROTATION_SIGMA / 4) == POSE_LR
+    assert pose_learning_rate(math.radians(8.0)) == pytest.approx(POSE_LR / 4)
+    meta = json.loads((subject / "meta.json").read_text())
+    stated = {"rotation_std_deg": 8.0, "translation_std_m": 0.01}
+    (subject / "meta.json").write_text(json.dumps({**meta, "pose_noise": stated}))
+    stages = [LoopConfig(steps=n, images_per_shard=2, checkpoint_every=0) for n in (1, 1)]
+    avatar = fit(subject, ModelConfig(**TINY_MODEL), tmp_path / "a.pt", FitConfig(*stages, lpips=False))
+    assert avatar.metadata["config"]["pose_lr"] == pytest.approx(POSE_LR / 4)
+    explicit = FitConfig(*stages, lpips=False, pose_lr=1e-3)
+    assert fit(subject, ModelConfig(**TINY_MODEL), tmp_path / "b.pt", explicit).metadata["config"]["pose_lr"] == 1e-3
