@@ -37,6 +37,8 @@ def test_bracket_of_known_frames():
     assert weight.tolist() == [0.0, 0.5, 0.0, 0.0, 0.0]
     lower, upper, weight = bracket(np.array([10, 14]), np.array([11, 13]), max_gap=4)
     assert (lower.tolist(), upper.tolist()) == ([0, 0], [1, 1]) and weight == pytest.approx([0.25, 0.75])
+    lower, upper, weight = bracket(np.array([], dtype=np.int64), np.array([1, 2]), max_gap=3)
+    assert lower.tolist() == upper.tolist() == [-1, -1]
 
 
 @pytest.fixture

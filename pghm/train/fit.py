@@ -5,7 +5,8 @@ Stage 1, identity-map adaptation: the decoded identity map is replaced by a new 
 full-resolution latent (C x L x L, bypassing the Feature Decoder), initialised with the
 decoded mean of the bank's latents, and optimised alone; the network is frozen.
 Stage 2, joint tuning: the latent and the U-Net (E_u, E_p, E_v and the decoders) are
-optimised together, with per-frame pose corrections when ``refine_poses``.
+optimised together, with per-frame pose corrections when ``refine_poses``; the avatar keeps
+them as its pose track (:mod:`pghm.train.pose_track`).
 """
 
 from __future__ import annotations

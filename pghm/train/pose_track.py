@@ -69,6 +69,9 @@ def bracket(known: np.ndarray, query: np.ndarray, max_gap: int) -> tuple[np.ndar
     with rows into ``known``; lower = upper and w = 0 where q is known; lower = upper = -1 where q
     is neither known nor bracketed by known frames at most ``max_gap`` apart.
     """
+    if len(known) == 0:
+        none = np.full(len(query), -1)
+        return none, none.copy(), np.zeros(len(query))
     upper = np.searchsorted(known, query)
     exact = (upper < len(known)) & (known[np.minimum(upper, len(known) - 1)] == query)
     lower = upper - 1
