@@ -119,3 +119,26 @@ def test_missing_file_and_foreign_skeleton(tmp_path):
     with pytest.raises(MotionFileError, match="re-import or re-generate"):
         small_motion().check_skeleton("smplx", BONES)
     assert set(MOTION_KEYS) == set(fields(small_motion()))
+
+
+def test_a_subject_folder_is_its_videos_motion(tiny_dataset, tmp_path, body):
+    """The tiny subject (frames 0, 1, 2, two views each) plays as 3 poses, each frame's first
+    image's, at 30 fps; frame numbers two apart (``--every 2``) play at 15; a folder that is no
+    subject is one error naming it."""
+    import shutil
+
+    from pghm.data.open_motion import SUBJECT_FPS, open_motion
+    from pghm.errors import DatasetError
+
+    subject = tiny_dataset / "subject_000"
+    poses, cameras = np.load(subject / "poses.npz"), np.load(subject / "cameras.npz")
+    motion = open_motion(subject, body)
+    first = [int(np.flatnonzero(cameras["frame_index"] == f)[0]) for f in (0, 1, 2)]
+    assert motion.num_frames == 3 and motion.fps == SUBJECT_FPS
+    np.testing.assert_array_equal(motion.rotations, poses["rotations"][first].astype(np.float32))
+    np.testing.assert_array_equal(motion.translation, poses["translation"][first].astype(np.float32))
+    strided = shutil.copytree(subject, tmp_path / "strided")
+    np.savez(strided / "cameras.npz", **{**cameras, "frame_index": cameras["frame_index"] * 2})
+    assert open_motion(strided, body).fps == SUBJECT_FPS / 2
+    with pytest.raises(DatasetError, match="meta.json"):
+        open_motion(tmp_path, body)

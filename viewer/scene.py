@@ -274,7 +274,7 @@ class AvatarScene:
     # -------------------------------------------------------------------- motion
 
     def open_motion(self, source: str) -> None:
-        """Open a motion file (.npz, .bvh) or a procedural name; the timeline restarts at 0."""
+        """Open a motion file (.npz, .bvh), a procedural name or a subject folder; the timeline restarts at 0."""
         motion = open_motion(source.strip(), self.body, self.driver.geometry.shape)
         self.pose_state.motion, self.pose_state.time = motion, 0.0
         self.motion_name = source.strip()

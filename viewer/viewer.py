@@ -420,7 +420,7 @@ class Viewer:
         self.scene.reset_pose()
 
     def open_motion(self, source: str) -> None:
-        """A motion file (.npz, .bvh) or a procedural name; the timeline restarts."""
+        """A motion file (.npz, .bvh), a procedural name or a subject folder; the timeline restarts."""
         self.scene.open_motion(source)
 
     def scrub_to(self, frame: int) -> None:

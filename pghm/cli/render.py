@@ -44,7 +44,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("avatar", type=Path, help="avatar or prior file (.pt)")
     parser.add_argument("--out", type=Path, required=True, help="out.mp4, out.png (one frame) or a directory")
-    parser.add_argument("--motion", help="motion file (.npz, .bvh) or procedural name (walk, squat, ...)")
+    parser.add_argument(
+        "--motion",
+        help="motion file (.npz, .bvh), procedural name (walk, squat, ...) or subject folder (its video's poses)",
+    )
     parser.add_argument("--orbit", action="store_true", help="turn the camera once around the body")
     parser.add_argument("--size", type=Size(), default=DEFAULT_SIZE, help="WxH pixels (default 640x480)")
     parser.add_argument(

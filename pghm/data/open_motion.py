@@ -1,4 +1,5 @@
-"""Resolve what a user names as a motion: a procedural clip, ``rest``, a ``.npz`` or a ``.bvh``.
+"""Resolve what a user names as a motion: a procedural clip, ``rest``, a ``.npz``, a ``.bvh``, or a
+subject folder (its video's poses, such as a capture's: the avatar replays the video's motion).
 
 The CLIs (``--pose``, ``--motion``) and the viewer's "open motion" all accept the same
 forms, so one function turns each into a :class:`~pghm.data.motion.Motion` for a body.
@@ -19,6 +20,9 @@ from pghm.errors import MotionFileError
 
 REST = "rest"
 REST_FPS = 30.0
+SUBJECT_FPS = 30.0
+"""Frame rate assumed for a subject's consecutive frame numbers (a phone video's; the subject format
+does not record the video's rate), divided by the subject's frame step (``pghm capture --every``)."""
 
 
 def motion_names() -> list[str]:
@@ -30,8 +34,8 @@ def open_motion(source: str | Path, body: BodyModel, shape: Tensor | None = None
     """The motion ``source`` names, for ``body`` (of ``shape``, which places the feet).
 
     Args:
-        source: "rest", a procedural name (walk, squat, ...), a ``.npz`` motion file, or a
-            ``.bvh`` file (retargeted on the fly).
+        source: "rest", a procedural name (walk, squat, ...), a ``.npz`` motion file, a
+            ``.bvh`` file (retargeted on the fly), or a subject folder (:func:`subject_motion`).
     """
     name = str(source)
     if name == REST:
@@ -41,6 +45,10 @@ def open_motion(source: str | Path, body: BodyModel, shape: Tensor | None = None
     if name in PROCEDURAL_MOTIONS:
         return procedural_motion(name, body, shape=shape)
     path = Path(name)
+    if path.is_dir():
+        motion = subject_motion(path)
+        motion.check_skeleton(body.name, body.bone_names)
+        return motion
     if path.suffix.lower() == ".bvh":
         return import_bvh(path, body, shape=shape)
     if path.suffix.lower() == ".npz" or path.exists():
@@ -48,3 +56,22 @@ def open_motion(source: str | Path, body: BodyModel, shape: Tensor | None = None
         motion.check_skeleton(body.name, body.bone_names)
         return motion
     raise MotionFileError(f"{name}: not a motion file (.npz, .bvh) nor one of {', '.join(motion_names())}")
+
+
+def subject_motion(directory: str | Path) -> Motion:
+    """A subject folder's stored poses as a motion: one pose per frame number (its first image's,
+    the views of an instant sharing it), in time order, at :data:`SUBJECT_FPS` over the frame step."""
+    from pghm.data.subject import Subject
+
+    arrays = Subject.open(directory).arrays
+    numbers = arrays.frame_index if arrays.frame_index is not None else np.arange(len(arrays))
+    frames, first = np.unique(numbers, return_index=True)
+    step = int(np.diff(frames).min()) if len(frames) > 1 else 1
+    return Motion(
+        arrays.rotations[first],
+        arrays.translation[first],
+        SUBJECT_FPS / step,
+        arrays.body,
+        list(arrays.bone_names),
+        source=f"subject {Path(directory).name}",
+    )
