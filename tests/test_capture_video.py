@@ -57,6 +57,7 @@ def read(source, region=None, out_size=None, every=1, max_frames=None):
 
 def test_every_frame_in_order(tmp_path):
     source = open_source(write_video(tmp_path / "numbered.mp4", numbered_frames(12)))
+    assert source.fps == 10.0
     assert (source.width, source.height) == (64, 48)
     frames = read(source)
     assert [index for index, _ in frames] == list(range(12))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import json
 
 import numpy as np
 import pytest
@@ -142,3 +143,6 @@ def test_a_subject_folder_is_its_videos_motion(tiny_dataset, tmp_path, body):
     assert open_motion(strided, body).fps == SUBJECT_FPS / 2
     with pytest.raises(DatasetError, match="meta.json"):
         open_motion(tmp_path, body)
+    meta = json.loads((strided / "meta.json").read_text())
+    (strided / "meta.json").write_text(json.dumps({**meta, "fps": 25.0}))
+    assert open_motion(strided, body).fps == 12.5  # the video's rate, stated, over the frame step

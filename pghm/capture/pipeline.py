@@ -176,6 +176,7 @@ class FrontEnd:
         frames_read: frames read (after ``every`` and ``max_frames``).
         dropped: source frame numbers where the person was not found.
         region: the crop, pixels of the full upright frame.
+        source_fps: the video's frame rate (None: a folder of images, or not stated).
     """
 
     observations: Observations
@@ -184,6 +185,7 @@ class FrontEnd:
     frames_read: int
     dropped: list[int]
     region: Region
+    source_fps: float | None = None
 
 
 def observe_video(
@@ -210,7 +212,8 @@ def observe_video(
             f"{source.name}: person not found in {len(dropped)} of {track.frames_read} frames "
             f"({listed(dropped, SHOWN_FRAMES)}); those frames are dropped"
         )
-    return FrontEnd(observations, source.name, (source.width, source.height), track.frames_read, dropped, region)
+    size = (source.width, source.height)
+    return FrontEnd(observations, source.name, size, track.frames_read, dropped, region, source.fps)
 
 
 def capture(
@@ -266,6 +269,7 @@ def _write(folder: Path, config: CaptureConfig, front: FrontEnd) -> None:
     meta = {
         "source": "pghm capture",
         "input": front.source_name,
+        "fps": front.source_fps,
         "options": config.to_json(),
         "pghm_version": pghm.__version__,
         "mediapipe_version": _version("mediapipe"),

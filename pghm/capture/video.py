@@ -77,12 +77,14 @@ class VideoFile:
         height: H, upright.
         frame_estimate: frames in the video from its duration and frame rate (for progress
             bars only; containers do not always say), or None.
+        fps: its frame rate as the container states it, or None.
     """
 
     path: Path
     width: int
     height: int
     frame_estimate: int | None
+    fps: float | None = None
 
     @classmethod
     def open(cls, path: Path) -> VideoFile:
@@ -110,7 +112,7 @@ class VideoFile:
         if fps and duration:
             hours, minutes, seconds = duration.groups()
             estimate = round((int(hours) * 3600 + int(minutes) * 60 + float(seconds)) * float(fps.group(1)))
-        return cls(path, width, height, estimate)
+        return cls(path, width, height, estimate, float(fps.group(1)) if fps else None)
 
     @property
     def name(self) -> str:
@@ -198,6 +200,11 @@ class ImageFolder:
     @property
     def frame_estimate(self) -> int:
         return len(self.files)
+
+    @property
+    def fps(self) -> None:
+        """Images have no frame rate."""
+        return None
 
     def frames(
         self, region: Region, out_size: tuple[int, int], every: int = 1, max_frames: int | None = None

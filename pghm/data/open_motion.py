@@ -21,8 +21,8 @@ from pghm.errors import MotionFileError
 REST = "rest"
 REST_FPS = 30.0
 SUBJECT_FPS = 30.0
-"""Frame rate assumed for a subject's consecutive frame numbers (a phone video's; the subject format
-does not record the video's rate), divided by the subject's frame step (``pghm capture --every``)."""
+"""Frame rate of a subject's consecutive frame numbers when its meta.json does not state the video's
+(``fps``, which ``pghm capture`` records): a phone video's usual rate."""
 
 
 def motion_names() -> list[str]:
@@ -60,17 +60,21 @@ def open_motion(source: str | Path, body: BodyModel, shape: Tensor | None = None
 
 def subject_motion(directory: str | Path) -> Motion:
     """A subject folder's stored poses as a motion: one pose per frame number (its first image's,
-    the views of an instant sharing it), in time order, at :data:`SUBJECT_FPS` over the frame step."""
+    the views of an instant sharing it), in time order, at the video's frame rate (meta.json's
+    ``fps``, else :data:`SUBJECT_FPS`) over the frame step (``pghm capture --every``)."""
     from pghm.data.subject import Subject
 
-    arrays = Subject.open(directory).arrays
+    subject = Subject.open(directory)
+    arrays = subject.arrays
+    stated = subject.meta.get("fps")
+    fps = float(stated) if isinstance(stated, int | float) and not isinstance(stated, bool) else SUBJECT_FPS
     numbers = arrays.frame_index if arrays.frame_index is not None else np.arange(len(arrays))
     frames, first = np.unique(numbers, return_index=True)
     step = int(np.diff(frames).min()) if len(frames) > 1 else 1
     return Motion(
         arrays.rotations[first],
         arrays.translation[first],
-        SUBJECT_FPS / step,
+        fps / step,
         arrays.body,
         list(arrays.bone_names),
         source=f"subject {Path(directory).name}",
