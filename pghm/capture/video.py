@@ -107,12 +107,13 @@ class VideoFile:
         if not sizes or sizes[0] is None:
             raise PghmError(f"{path.name}: not a readable video (ffmpeg reported no frame size)")
         width, height = int(sizes[0].group(1)), int(sizes[0].group(2))
-        fps, duration = _FPS.search(log), _DURATION.search(log)
+        stated, duration = _FPS.search(log), _DURATION.search(log)
+        fps = float(stated.group(1)) if stated else None
         estimate = None
         if fps and duration:
             hours, minutes, seconds = duration.groups()
-            estimate = round((int(hours) * 3600 + int(minutes) * 60 + float(seconds)) * float(fps.group(1)))
-        return cls(path, width, height, estimate, float(fps.group(1)) if fps else None)
+            estimate = round((int(hours) * 3600 + int(minutes) * 60 + float(seconds)) * fps)
+        return cls(path, width, height, estimate, fps)
 
     @property
     def name(self) -> str:
