@@ -146,3 +146,35 @@ def test_a_subject_folder_is_its_videos_motion(tiny_dataset, tmp_path, body):
     meta = json.loads((strided / "meta.json").read_text())
     (strided / "meta.json").write_text(json.dumps({**meta, "fps": 25.0}))
     assert open_motion(strided, body).fps == 12.5  # the video's rate, stated, over the frame step
+
+
+def test_a_subject_folder_replays_with_the_pose_track_of_an_avatar_fitted_on_it(tiny_dataset, body):
+    """A track of corrections linear in time, c_f = f v, known at frames 0 and 2: the replay adds
+    each trained frame's own and frame 1 exactly v, on the track's bones only; a track learned
+    on other poses (another digest) leaves the stored poses."""
+    import torch
+
+    from pghm.data.open_motion import open_motion
+    from pghm.data.subject import Subject
+    from pghm.io.avatar import PoseTrack
+
+    subject = tiny_dataset / "subject_000"
+    stored = open_motion(subject, body)
+    bones = torch.tensor([1, 4, 7])
+    v_rot, v_trans = torch.randn(3, 3) * 0.05, torch.tensor([0.01, -0.02, 0.03])
+    digest = Subject.open(subject).arrays.poses_digest()
+    track = PoseTrack(
+        torch.tensor([0, 2]),
+        bones,
+        torch.stack([0 * v_rot, 2 * v_rot]),
+        torch.stack([0 * v_trans, 2 * v_trans]),
+        digest,
+    )
+    replay = open_motion(subject, body, track=track)
+    expected = stored.rotations.copy()
+    for frame in (0, 1, 2):
+        expected[frame, bones.numpy()] += frame * v_rot.numpy()
+    np.testing.assert_allclose(replay.rotations, expected, atol=1e-6)
+    np.testing.assert_allclose(replay.translation - stored.translation, np.outer([0, 1, 2], v_trans.numpy()), atol=1e-6)
+    track.poses = "another video"
+    np.testing.assert_array_equal(open_motion(subject, body, track=track).rotations, stored.rotations)

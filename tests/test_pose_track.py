@@ -14,12 +14,12 @@ from conftest import TINY_MODEL
 from pghm.body import load_body
 from pghm.cli.main import main
 from pghm.errors import PghmError
-from pghm.io.avatar import load_avatar, save_avatar
+from pghm.io.avatar import bracket, load_avatar, save_avatar
 from pghm.model import ModelConfig
 from pghm.train.data import TrainingData
 from pghm.train.fit import FitConfig, fit
 from pghm.train.loop import LoopConfig
-from pghm.train.pose_track import bracket, learned_track, track_corrections
+from pghm.train.pose_track import learned_track, track_corrections
 
 SPLITS = {"train": [0, 1, 4, 5], "test": [2, 3], "own": [1]}
 """The tiny subject's images are frames 0, 1, 2 seen by cameras 0 and 1: train on frames 0 and 2,
@@ -112,15 +112,17 @@ def test_fit_records_its_track_and_eval_with_it_undoes_a_known_error(subject, tm
     assert "no pose track" in line and not list(tmp_path.glob("untracked.pt.eval*"))
 
 
-def test_the_pose_learning_rate_follows_the_stated_noise(subject, tmp_path):
-    """sigma_0 / sigma times the synthetic data's rate, never above it; a fit of a subject that
-    states 8 degrees records a quarter of it."""
+def test_the_pose_learning_rate_and_the_track_settling_follow_the_stated_noise(subject, tmp_path):
+    """sigma_0 / sigma times the synthetic data's rate, never above it; the track settled only for
+    poses noisier than sigma_0; a fit of a subject that states 8 degrees records both."""
     import math
 
     from pghm.train.data import ESTIMATOR_ROTATION_SIGMA
-    from pghm.train.fit import POSE_LR, pose_learning_rate
+    from pghm.train.fit import POSE_LR, TRACK_MIN_VISITS, TRACK_STEPS, pose_learning_rate, track_steps
 
     assert pose_learning_rate(ESTIMATOR_ROTATION_SIGMA) == POSE_LR
+    assert track_steps(ESTIMATOR_ROTATION_SIGMA, 1.0) == 0 and track_steps(math.radians(9.5), 1.0) == TRACK_STEPS
+    assert track_steps(math.radians(9.5), TRACK_MIN_VISITS) == 0
     assert pose_learning_rate(ESTIMATOR_ROTATION_SIGMA / 4) == POSE_LR
     assert pose_learning_rate(math.radians(8.0)) == pytest.approx(POSE_LR / 4)
     meta = json.loads((subject / "meta.json").read_text())
@@ -129,5 +131,6 @@ def test_the_pose_learning_rate_follows_the_stated_noise(subject, tmp_path):
     stages = [LoopConfig(steps=n, images_per_shard=2, checkpoint_every=0) for n in (1, 1)]
     avatar = fit(subject, ModelConfig(**TINY_MODEL), tmp_path / "a.pt", FitConfig(*stages, lpips=False))
     assert avatar.metadata["config"]["pose_lr"] == pytest.approx(POSE_LR / 4)
+    assert avatar.metadata["config"]["track_steps"] == TRACK_STEPS
     explicit = FitConfig(*stages, lpips=False, pose_lr=1e-3)
     assert fit(subject, ModelConfig(**TINY_MODEL), tmp_path / "b.pt", explicit).metadata["config"]["pose_lr"] == 1e-3

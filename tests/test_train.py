@@ -236,13 +236,14 @@ def test_test_time_pose_refinement_moves_shifted_poses_back(tiny_dataset, prior_
     (avatar frozen) brings them closer to the poses the images were rendered with, and the
     evaluation's PSNR rises; the avatar's parameters are untouched."""
     from pghm.train.evaluate import evaluate
-    from pghm.train.test_poses import refine_test_poses
+    from pghm.train.fit import POSE_LR, FitConfig
+    from pghm.train.test_poses import refine_poses
 
     avatar = tiny_avatar(tiny_dataset / "subject_000", prior_file, tmp_path / "a.pt", 4, 4)
     shifted = shifted_subject(tiny_dataset / "subject_000", tmp_path / "shifted")
     data = TrainingData(shifted, split="test")
     before = [p.detach().clone() for p in avatar.model.parameters()]
-    corrections = refine_test_poses(avatar, data, steps=REFINE_STEPS, progress=False)
+    corrections = refine_poses(avatar, data, REFINE_STEPS, FitConfig().stage2.loss, POSE_LR, progress=False)
     assert all(torch.equal(a, b) for a, b in zip(before, avatar.model.parameters()))
     assert shift_left(corrections, data) < 0.85 * float(np.linalg.norm(POSE_SHIFT))
     stored = evaluate(avatar, shifted).summary()["psnr"]
@@ -254,14 +255,41 @@ def test_refinement_moves_poses_further_when_the_subject_states_them_noisier(tin
     """The same shifted poses, stated with the shift's own scale (8 cm, as a capture states its
     error) rather than the synthetic 1 cm: the prior holds the corrections back less, and the
     refinement removes more of the shift."""
-    from pghm.train.test_poses import refine_test_poses
+    from pghm.train.fit import POSE_LR, FitConfig
+    from pghm.train.test_poses import refine_poses
 
     avatar = tiny_avatar(tiny_dataset / "subject_000", prior_file, tmp_path / "a.pt", 4, 4)
     left = {}
     for name, noise in (("default", None), ("stated", {"rotation_std_deg": 2.0, "translation_std_m": 0.08})):
         data = TrainingData(shifted_subject(tiny_dataset / "subject_000", tmp_path / name, noise), split="test")
-        left[name] = shift_left(refine_test_poses(avatar, data, steps=REFINE_STEPS, progress=False), data)
+        refined = refine_poses(avatar, data, REFINE_STEPS, FitConfig().stage2.loss, POSE_LR, progress=False)
+        left[name] = shift_left(refined, data)
     assert left["stated"] < 0.8 * left["default"], left
+
+
+def test_a_capture_fit_settles_its_pose_track_towards_the_true_poses(tiny_dataset, prior_file, tmp_path):
+    """A subject whose training poses are all off by POSE_SHIFT and that states capture-sized noise:
+    the fit's settled track (each training frame refined against the fitted avatar) cancels more of
+    the shift than stage 2's corrections alone, and leaves the avatar itself as it was."""
+    from pghm.train.fit import TRACK_STEPS
+
+    noise = {"rotation_std_deg": 9.5, "translation_std_m": 0.08}
+    shifted = shifted_subject(tiny_dataset / "subject_000", tmp_path / "shifted", noise)
+    data = TrainingData(shifted)
+    stages = [LoopConfig(steps=n, checkpoint_every=0) for n in (4, 4)]
+    avatars = {
+        steps: fit(shifted, prior_file, tmp_path / f"{steps}.pt", FitConfig(*stages, lpips=False, track_steps=steps))
+        for steps in (0, None)
+    }
+    assert avatars[None].metadata["config"]["track_steps"] == TRACK_STEPS
+    assert "track_seconds" not in avatars[0].metadata
+    assert torch.equal(avatars[0].latent, avatars[None].latent)
+    left = {}
+    for steps, avatar in avatars.items():
+        track = avatar.pose_track
+        assert track.frames.tolist() == sorted({data.load(0, int(i)).frame_key for i in data.images[0]})
+        left[steps] = float((torch.from_numpy(POSE_SHIFT) + track.translation).norm(dim=1).max())
+    assert left[None] < 0.85 * left[0], left
 
 
 def test_learning_rate_ten_times_too_high_leaves_no_nan(tiny_dataset, tmp_path, caplog):

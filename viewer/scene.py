@@ -275,7 +275,7 @@ class AvatarScene:
 
     def open_motion(self, source: str) -> None:
         """Open a motion file (.npz, .bvh), a procedural name or a subject folder; the timeline restarts at 0."""
-        motion = open_motion(source.strip(), self.body, self.driver.geometry.shape)
+        motion = open_motion(source.strip(), self.body, self.driver.geometry.shape, self.avatar.pose_track)
         self.pose_state.motion, self.pose_state.time = motion, 0.0
         self.motion_name = source.strip()
         self.motion_serial = next(_SERIALS)

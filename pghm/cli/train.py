@@ -15,7 +15,7 @@ from pghm.io.outputs import check_output
 from pghm.model import ModelConfig
 from pghm.model.config import MAX_CHANNELS
 from pghm.train.background import BACKGROUND_KINDS, WHITE
-from pghm.train.fit import FitConfig
+from pghm.train.fit import TRACK_MIN_VISITS, TRACK_STEPS, FitConfig
 from pghm.train.loop import MAX_LEARNING_RATE, LoopConfig
 from pghm.train.losses import LossWeights
 from pghm.train.prior import PriorConfig
@@ -139,6 +139,14 @@ def register(subparsers) -> None:
         help="sigma in frames of the temporal filter on the estimated poses; 0: as stored (default %(default)s)",
     )
     fit.add_argument(
+        "--track-steps",
+        type=STEPS,
+        default=None,
+        help="pose refinement steps per training frame after stage 2, which settle the avatar's pose track "
+        f"(default: {TRACK_STEPS} for poses stated noisier than 2 degrees, as a capture's, when stage 2 visits "
+        f"each frame fewer than {TRACK_MIN_VISITS} times; else 0)",
+    )
+    fit.add_argument(
         "--uv-resolution",
         type=Integer(MIN_RESOLUTION, MAX_RESOLUTION),
         default=None,
@@ -236,6 +244,7 @@ def run_fit(args: argparse.Namespace) -> int:
         stage2=stages[1],
         refine_poses=not args.no_pose_refinement,
         pose_smoothing=args.pose_smoothing,
+        track_steps=args.track_steps,
         uv_resolution=args.uv_resolution,
         lpips=not args.no_lpips,
         body_model_path=args.body_model_path,

@@ -8,6 +8,7 @@ forms, so one function turns each into a :class:`~pghm.data.motion.Motion` for a
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from torch import Tensor
@@ -17,6 +18,10 @@ from pghm.data.motion import Motion
 from pghm.data.procedural import PROCEDURAL_MOTIONS, procedural_motion
 from pghm.data.retarget import import_bvh
 from pghm.errors import MotionFileError
+from pghm.io.avatar import MAX_BRACKET_STEPS
+
+if TYPE_CHECKING:
+    from pghm.io.avatar import PoseTrack
 
 REST = "rest"
 REST_FPS = 30.0
@@ -30,12 +35,15 @@ def motion_names() -> list[str]:
     return [REST, *PROCEDURAL_MOTIONS]
 
 
-def open_motion(source: str | Path, body: BodyModel, shape: Tensor | None = None) -> Motion:
+def open_motion(
+    source: str | Path, body: BodyModel, shape: Tensor | None = None, track: PoseTrack | None = None
+) -> Motion:
     """The motion ``source`` names, for ``body`` (of ``shape``, which places the feet).
 
     Args:
         source: "rest", a procedural name (walk, squat, ...), a ``.npz`` motion file, a
             ``.bvh`` file (retargeted on the fly), or a subject folder (:func:`subject_motion`).
+        track: the avatar's pose track, applied to a subject folder it was learned on.
     """
     name = str(source)
     if name == REST:
@@ -46,7 +54,7 @@ def open_motion(source: str | Path, body: BodyModel, shape: Tensor | None = None
         return procedural_motion(name, body, shape=shape)
     path = Path(name)
     if path.is_dir():
-        motion = subject_motion(path)
+        motion = subject_motion(path, track)
         motion.check_skeleton(body.name, body.bone_names)
         return motion
     if path.suffix.lower() == ".bvh":
@@ -58,10 +66,16 @@ def open_motion(source: str | Path, body: BodyModel, shape: Tensor | None = None
     raise MotionFileError(f"{name}: not a motion file (.npz, .bvh) nor one of {', '.join(motion_names())}")
 
 
-def subject_motion(directory: str | Path) -> Motion:
+def subject_motion(directory: str | Path, track: PoseTrack | None = None) -> Motion:
     """A subject folder's stored poses as a motion: one pose per frame number (its first image's,
     the views of an instant sharing it), in time order, at the video's frame rate (meta.json's
-    ``fps``, else :data:`SUBJECT_FPS`) over the frame step (``pghm capture --every``)."""
+    ``fps``, else :data:`SUBJECT_FPS`) over the frame step (``pghm capture --every``).
+
+    With ``track``, the pose track of an avatar fitted on this subject, every frame takes the
+    corrections the fit learned for it (:meth:`PoseTrack.at`: a trained frame its own, a held-out
+    one its neighbours' interpolated): the avatar replays its video with the poses it was fitted
+    with. A track learned on other poses (its digest differs) is ignored.
+    """
     from pghm.data.subject import Subject
 
     subject = Subject.open(directory)
@@ -71,9 +85,14 @@ def subject_motion(directory: str | Path) -> Motion:
     numbers = arrays.frame_index if arrays.frame_index is not None else np.arange(len(arrays))
     frames, first = np.unique(numbers, return_index=True)
     step = int(np.diff(frames).min()) if len(frames) > 1 else 1
+    rotations, translation = arrays.rotations[first].copy(), arrays.translation[first].copy()
+    if track is not None and track.poses == arrays.poses_digest():
+        delta_rotations, delta_translation, _, _ = track.at(frames, MAX_BRACKET_STEPS * step)
+        rotations[:, track.bones.numpy()] += delta_rotations.numpy()
+        translation += delta_translation.numpy()
     return Motion(
-        arrays.rotations[first],
-        arrays.translation[first],
+        rotations,
+        translation,
         fps / step,
         arrays.body,
         list(arrays.bone_names),

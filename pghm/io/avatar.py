@@ -27,6 +27,7 @@ import operator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -40,6 +41,33 @@ FORMAT_NAME = "pghm-avatar"
 FORMAT_VERSION = 1
 REQUIRED_KEYS = ("format", "version", "kind", "config", "body", "latent", "weights", "metadata")
 KINDS = ("avatar", "prior")
+MAX_BRACKET_STEPS = 3
+"""A frame a pose track does not hold is interpolated only between trained frames at most this many
+frame steps apart (the subject's smallest step between frame numbers): a test frame with a dropped
+frame beside it still is; anything farther keeps its stored pose."""
+
+
+def bracket(known: np.ndarray, query: np.ndarray, max_gap: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Interpolation of values known at frames ``known`` (K,) ascending onto frames ``query`` (Q,).
+
+    Returns (lower, upper, weight), each (Q,): value(q) = (1 - w) value[lower] + w value[upper]
+    with rows into ``known``; lower = upper and w = 0 where q is known; lower = upper = -1 where q
+    is neither known nor bracketed by known frames at most ``max_gap`` apart.
+    """
+    if len(known) == 0:
+        none = np.full(len(query), -1)
+        return none, none.copy(), np.zeros(len(query))
+    upper = np.searchsorted(known, query)
+    exact = (upper < len(known)) & (known[np.minimum(upper, len(known) - 1)] == query)
+    lower = upper - 1
+    inside = (lower >= 0) & (upper < len(known))
+    a = known[np.clip(lower, 0, len(known) - 1)]
+    b = known[np.clip(upper, 0, len(known) - 1)]
+    between = inside & ~exact & (b - a <= max_gap)
+    weight = np.where(between, (query - a) / np.maximum(b - a, 1), 0.0)
+    lower = np.where(exact, upper, np.where(between, lower, -1))
+    upper = np.where(exact | between, upper, -1)
+    return lower, upper, weight
 
 
 @dataclass
@@ -59,6 +87,28 @@ class PoseTrack:
     rotations: Tensor
     translation: Tensor
     poses: str
+
+    def at(self, frames: np.ndarray, max_gap: int) -> tuple[Tensor, Tensor, np.ndarray, np.ndarray]:
+        """The corrections at frame numbers ``frames`` (Q,): a trained frame's own, or those of the
+        trained frames on either side (at most ``max_gap`` apart) interpolated in time,
+
+            delta_f = (1 - w) delta_a + w delta_b,    w = (f - a) / (b - a);
+
+        the deltas are small axis-angle vectors, so this interpolates their rotations to first order.
+
+        Returns rotations (Q, K, 3), translation (Q, 3) (zero where ``found`` is False), found (Q,)
+        and exact (Q,) (a trained frame's own) boolean masks.
+        """
+        lower, upper, weight = bracket(self.frames.numpy(), np.asarray(frames), max_gap)
+        found = lower >= 0
+        w = torch.as_tensor(weight, dtype=torch.float32)
+        lo, hi = torch.as_tensor(np.maximum(lower, 0)), torch.as_tensor(np.maximum(upper, 0))
+        out = []
+        for known in (self.rotations, self.translation):
+            weights = w.view(-1, *[1] * (known.dim() - 1))
+            value = (1 - weights) * known[lo] + weights * known[hi]
+            out.append(torch.where(torch.as_tensor(found).view_as(weights), value, torch.zeros_like(value)))
+        return out[0], out[1], found, found & (lower == upper)
 
 
 @dataclass

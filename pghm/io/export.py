@@ -43,7 +43,7 @@ def export_posed_ply(
     avatar = load_avatar(avatar_path)
     avatar.check_identity(identity)
     body = load_body(avatar.body_name, body_model_path)
-    motion = open_motion(pose_source, body, avatar.shape_of(identity))
+    motion = open_motion(pose_source, body, avatar.shape_of(identity), avatar.pose_track)
     if not 0 <= frame < motion.num_frames:
         raise PghmError(f"--frame {frame} is outside the motion's {motion.num_frames} frames")
     pose = motion.pose(frame)

@@ -158,7 +158,7 @@ def render_video(job: RenderJob, log: Callable[[str], None] = print) -> RenderSu
     avatar = load_avatar(job.avatar)
     avatar.check_identity(job.identity)
     driver = AvatarDriver(avatar, job.identity, job.body_model_path)
-    motion = open_motion(job.motion, driver.body, driver.geometry.shape) if job.motion else None
+    motion = open_motion(job.motion, driver.body, driver.geometry.shape, avatar.pose_track) if job.motion else None
     specs = plan_frames(job, motion)
     identity_map = avatar.identity_map(job.identity)
     rest_points = driver.geometry.surface.positions.numpy()

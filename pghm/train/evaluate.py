@@ -35,12 +35,13 @@ from pghm.io.atomic import atomic_write_bytes
 from pghm.io.avatar import Avatar, avatar_geometry, load_avatar, recorded_path
 from pghm.model.evaluator import CachedEvaluator
 from pghm.splat import render
+from pghm.train import test_poses
 from pghm.train.background import BLACK, WHITE, composite_render, composite_target
 from pghm.train.data import PoseCorrections, Sample, TrainingData
+from pghm.train.fit import POSE_LR, FitConfig
 from pghm.train.losses import psnr, ssim
 from pghm.train.lpips import load_lpips, lpips_status
 from pghm.train.pose_track import track_corrections
-from pghm.train.test_poses import refine_test_poses
 
 ERROR_SCALE = 0.25
 """Mean absolute RGB error shown at full intensity in the heat map."""
@@ -192,7 +193,10 @@ def evaluate(
         poses = poses.format(**counts)
     if refine_poses > 0:
         started = time.perf_counter()
-        corrections = refine_test_poses(avatar, data, refine_poses, body_model_path, images=indices)
+        loss = FitConfig().stage2.loss  # the fit's own objective, so a frozen avatar sees what it was fitted with
+        corrections = test_poses.refine_poses(
+            avatar, data, refine_poses, loss, POSE_LR, images=indices, body_model_path=body_model_path
+        )
         refine_seconds = time.perf_counter() - started
     strip_at = set(indices[:: max(1, len(indices) // STRIP_FRAMES)][:STRIP_FRAMES])
     result = EvalResult([], [], [] if lpips is not None else None, [], background=background)

@@ -1,11 +1,12 @@
-"""Test-time pose refinement: each held-out frame's pose fitted to its own image, the avatar frozen.
+"""Pose refinement against a frozen avatar: each frame's pose fitted to its own image.
 
 A monocular capture's poses carry its estimator's error. ``pghm fit`` corrects the poses of the
 frames it trains on (per-frame corrections in stage 2), but a held-out frame keeps its estimate,
 and an estimate a few pixels off leaves an error along every edge of the render: PSNR then
 measures the pose estimator, not the avatar. Evaluations of monocular avatars therefore refine
 the held-out poses against their images with the model frozen (InstantAvatar and GART on
-PeopleSnapshot). This module does it with the fit's own objective and corrections:
+PeopleSnapshot); ``pghm fit`` uses the same pass on its *training* frames to settle its pose
+track once the avatar is learned (:mod:`pghm.train.pose_track`). Both use the fit's objective:
 
     delta* = argmin_delta  L(render(avatar, pose + delta), image) + w_p P(delta)
 
@@ -13,8 +14,10 @@ L is the fit's loss (L1 + SSIM + silhouette, on a random background colour per i
 step), P the fit's Gaussian prior on the corrections (:meth:`PoseCorrections.prior`, as wide
 as the subject's stated pose noise) with its weight w_p; only delta changes (the estimator's
 joints and the root translation, one row per frame). A frame's row depends on its image
-alone, so one step over all frames is one step of each frame's own problem. Appearance is
-untouched: the latent and every network weight stay as fitted.
+alone, so the frames are refined a batch at a time, each batch for all its steps (lazy Adam
+rows: a batch's steps leave the other frames' rows and moments untouched), and only one batch
+of images is in memory. Appearance is untouched: the latent and every network weight stay as
+fitted.
 """
 
 from __future__ import annotations
@@ -28,8 +31,9 @@ from pghm.body import load_body
 from pghm.io.avatar import Avatar, avatar_geometry
 from pghm.train.background import TRAINING_BACKGROUND, draw_backgrounds
 from pghm.train.data import PoseCorrections, TrainingData
-from pghm.train.fit import POSE_LR, FitConfig
 from pghm.train.loop import AvatarObjective
+from pghm.train.losses import LossWeights
+from pghm.train.optim import LazyAdam
 
 log = logging.getLogger(__name__)
 
@@ -39,52 +43,64 @@ REFINE_SEED_SALT = 0x7E57
 """Keeps the refinement's background draws apart from the fit's (same seed, same step)."""
 
 
-def refine_test_poses(
+def refine_poses(
     avatar: Avatar,
     data: TrainingData,
     steps: int,
+    weights: LossWeights,
+    lr: float,
+    corrections: PoseCorrections | None = None,
+    images: list[int] | None = None,
     body_model_path: str | None = None,
     seed: int = 0,
     progress: bool = True,
-    images: list[int] | None = None,
+    desc: str = "refine poses",
 ) -> PoseCorrections:
-    """Pose corrections of the frames of ``data`` (one subject, typically its test split) fitted
-    to their images for ``steps`` Adam steps, ``avatar`` frozen.
+    """Pose corrections of the frames of ``data`` (one subject) fitted to their images for
+    ``steps`` Adam steps (learning rate ``lr``, loss ``weights``), ``avatar`` frozen.
 
-    ``images``: only these image indices of ``data`` (None: all of them). Returns corrections
-    indexed by :attr:`Sample.frame_key`; the other frames keep zero rows.
+    ``corrections``: where to start (updated in place; None: zero corrections of every frame).
+    ``images``: only these image indices of ``data`` (None: all of them). Returns the
+    corrections, indexed by :attr:`Sample.frame_key`; the other frames' rows are unchanged.
     """
     body = load_body(avatar.body_name, body_model_path)
     geometry = avatar_geometry(avatar, body_model_path=body_model_path)
-    corrections = data.pose_corrections(body)
-    weights = FitConfig().stage2.loss  # the fit's own loss, so a frozen avatar sees the same objective
+    corrections = data.pose_corrections(body) if corrections is None else corrections
+    corrections.requires_grad_(True)
     model = avatar.model.eval()
     frozen = [p for p in model.parameters() if p.requires_grad]
     for p in frozen:
         p.requires_grad_(False)
     objective = AvatarObjective(model, avatar.identity_map(), corrections, weights, lpips=None)
-    optimizer = torch.optim.Adam(corrections.parameters(), lr=POSE_LR)
+    optimizer = LazyAdam([{"params": list(corrections.parameters()), "lr": lr, "lazy": True}])
     images = [int(i) for i in (data.images[0] if images is None else images)]
-    # Read once: every step renders the same images.
-    batches = [data.load_group(0, images[k : k + IMAGES_PER_BATCH]) for k in range(0, len(images), IMAGES_PER_BATCH)]
+    starts = range(0, len(images), IMAGES_PER_BATCH)
+    bar = tqdm(total=len(starts) * steps, desc=desc, disable=not progress, dynamic_ncols=True)
     try:
-        for step in tqdm(range(steps), desc="refine test poses", disable=not progress, dynamic_ncols=True):
-            optimizer.zero_grad(set_to_none=False)
-            for position, samples in enumerate(batches):
-                if not samples:
-                    continue
-                height, width = samples[0].camera.height, samples[0].camera.width
+        for position, start in enumerate(starts):
+            samples = data.load_group(0, images[start : start + IMAGES_PER_BATCH])
+            if not samples:
+                bar.update(steps)
+                continue
+            height, width = samples[0].camera.height, samples[0].camera.width
+            for step in range(steps):
+                optimizer.zero_grad(set_to_none=False)
                 backgrounds = draw_backgrounds(
                     TRAINING_BACKGROUND, len(samples), height, width, (seed, REFINE_SEED_SALT, step, position)
                 )
                 loss, _ = objective(samples, geometry, backgrounds)
                 loss.backward()
-            grads = [p.grad for p in corrections.parameters()]
-            if not all(bool(torch.isfinite(g).all()) for g in grads):
-                log.warning("test-pose refinement step %d: non-finite gradient; step skipped", step)
-                continue
-            optimizer.step()
+                bar.update(1)
+                if not all(bool(torch.isfinite(p.grad).all()) for p in corrections.parameters()):
+                    log.warning(
+                        "pose refinement, images %s, step %d: non-finite gradient; step skipped",
+                        [s.image_index for s in samples],
+                        step,
+                    )
+                    continue
+                optimizer.step()
     finally:
+        bar.close()
         for p in frozen:
             p.requires_grad_(True)
     return corrections.requires_grad_(False)
