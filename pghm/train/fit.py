@@ -62,10 +62,10 @@ POSE_LR = 1e-2
 
 TRACK_STEPS = 30
 """Steps of each training frame's pose refinement that settles the pose track (:func:`track_steps`).
-On a captured 100-frame video the held-out frames rendered with the track gain -0.14, +0.52 and
-+0.82 dB over stage 2's corrections at 10, 20 and 30 steps: Adam's first steps move every
+On a captured 100-frame video the held-out frames rendered with the track gain -0.14, +0.52, +0.82
+and +0.90 dB over stage 2's corrections at 10, 20, 30 and 50 steps: Adam's first steps move every
 coordinate by about the learning rate, whatever its gradient, and the poses settle only after
-(docs/capture.md, d)."""
+(docs/training.md)."""
 
 TRACK_MIN_VISITS = 20
 """Stage 2 visits per training frame (its steps x images per step / training images) from which its
