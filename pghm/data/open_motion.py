@@ -84,7 +84,7 @@ def subject_motion(directory: str | Path, track: PoseTrack | None = None) -> Mot
     fps = float(stated) if isinstance(stated, int | float) and not isinstance(stated, bool) else SUBJECT_FPS
     numbers = arrays.frame_index if arrays.frame_index is not None else np.arange(len(arrays))
     frames, first = np.unique(numbers, return_index=True)
-    step = int(np.diff(frames).min()) if len(frames) > 1 else 1
+    step = arrays.frame_step()
     rotations, translation = arrays.rotations[first].copy(), arrays.translation[first].copy()
     if track is not None and track.poses == arrays.poses_digest():
         delta_rotations, delta_translation, _, _ = track.at(frames, MAX_BRACKET_STEPS * step)

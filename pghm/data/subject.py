@@ -112,6 +112,12 @@ class SubjectArrays:
     def __len__(self) -> int:
         return len(self.K)
 
+    def frame_step(self) -> int:
+        """The smallest difference between two of the frame numbers (1 for a whole video, N for
+        ``pghm capture --every N``; 1 when the images are not frames of a video)."""
+        steps = np.diff(np.unique(self.frame_index)) if self.frame_index is not None else np.ones(1)
+        return int(steps.min()) if len(steps) else 1
+
     def poses_digest(self) -> str:
         """SHA-256 (hex) of the stored poses and their frame numbers: names the poses that
         corrections learned on them (an avatar's pose track) apply to."""

@@ -281,6 +281,9 @@ def fit(
             "config": config_record(config),
         },
     )
+    for p in model.parameters():
+        p.requires_grad_(True)
+    check_trained([state1, state2], out)  # before settling: no minutes spent on a failed fit
     # Corrections of smoothed poses would not apply to the held-out frames' stored ones.
     if corrections is not None and not config.pose_smoothing:
         if config.track_steps:
@@ -289,9 +292,6 @@ def fit(
             refine_poses(avatar, data, config.track_steps, loss, POSE_LR, corrections, desc="fit: settle poses")
             avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
         avatar.pose_track = learned_track(corrections, data)
-    for p in model.parameters():
-        p.requires_grad_(True)
-    check_trained([state1, state2], out)
     save_avatar(out, avatar)
     ckpt.unlink(missing_ok=True)  # the avatar holds the result; a stale checkpoint would only mislead --resume
     return avatar

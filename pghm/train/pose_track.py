@@ -24,7 +24,6 @@ import numpy as np
 import torch
 
 from pghm.body.model import BodyModel
-from pghm.data.subject import Subject
 from pghm.errors import PghmError
 from pghm.io.avatar import MAX_BRACKET_STEPS, PoseTrack
 from pghm.train.data import PoseCorrections, TrainingData
@@ -51,13 +50,6 @@ def learned_track(corrections: PoseCorrections, data: TrainingData) -> PoseTrack
     )
 
 
-def frame_step(subject: Subject) -> int:
-    """The smallest difference between two of the subject's frame numbers (1 for a whole video)."""
-    frames = subject.arrays.frame_index
-    steps = np.diff(np.unique(frames)) if frames is not None else np.ones(1)
-    return int(steps.min()) if len(steps) else 1
-
-
 def track_corrections(track: PoseTrack, data: TrainingData, body: BodyModel) -> tuple[PoseCorrections, dict]:
     """Corrections of every frame of ``data`` (one subject, e.g. its test split) from ``track``.
 
@@ -74,7 +66,7 @@ def track_corrections(track: PoseTrack, data: TrainingData, body: BodyModel) -> 
     if not torch.equal(track.bones, corrections.bones):
         raise PghmError(f"the avatar's pose track corrects other bones than {data.body_name}'s estimated joints")
     frames = _frames_of(data)
-    rotations, translation, found, exact = track.at(frames, MAX_BRACKET_STEPS * frame_step(subject))
+    rotations, translation, found, exact = track.at(frames, MAX_BRACKET_STEPS * subject.arrays.frame_step())
     rows = torch.as_tensor(frames[found] + data.frame_offsets[0])
     with torch.no_grad():
         corrections.rotations[rows], corrections.translation[rows] = rotations[found], translation[found]
