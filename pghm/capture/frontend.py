@@ -6,15 +6,16 @@ confidences, and its 33 metric "world" landmarks, all from MediaPipe's legacy
 ships the detector, landmark and segmentation models inside its wheel: nothing is
 downloaded).
 
-Tracking. Over a photograph of a room MediaPipe, run on the whole frame, can miss the
-person or lock onto a person printed in the background. Two MediaPipe instances work on
-each frame (:class:`PersonFinder`): one in video mode on the whole frame, which carries the
-person's region from frame to frame and so keeps them when its detector alone would fail
-(a back turned to the camera over clutter), and one in static-image mode on a square
-around the previous frame's box (the person is then large in the detector's input). A
-detection only continues the track when it is consistent with it: its centre within
-:data:`MAX_SHIFT` box diagonals of the previous box's and its size within a factor
-:data:`MAX_SCALE_CHANGE`, both loosened for each frame the person has been lost. With no
+Tracking (:class:`PersonFinder`). Over a photograph of a room MediaPipe, run on the whole
+frame, can miss the person or lock onto a person printed in the background. Its video mode
+on the whole frame carries the person's region from frame to frame and so keeps them when
+its detector alone would fail (a back turned to the camera over clutter); failing that, its
+static-image mode searches a square around the previous frame's box (the person is then
+large in the detector's input), and failing that its landmark model alone is given that
+square (:class:`RegionPoseEstimator`: no detector). A detection only continues the track
+when it is consistent with it: its centre within :data:`MAX_SHIFT` box diagonals of the
+previous box's, its size within a factor :data:`MAX_SCALE_CHANGE` and each side within
+:data:`MAX_SIDE_CHANGE`, all loosened for each frame the person has been lost. With no
 track (the first frame, or after :data:`LOST_RESET` frames without the person), the whole
 frame and three square windows along its long side are searched and the largest person
 found starts the track: the person filmed is the one the camera frames.
@@ -24,11 +25,12 @@ people or clutter beside the person; only its connected components that hold one
 person's visible landmarks are kept.
 
 Two passes use this (:mod:`pghm.capture.pipeline`): :func:`track_person` on frames scaled
-small (boxes only), then a new :class:`PersonFinder` on the subject's cropped images,
-seeded with each frame's box, for the masks and landmarks at the subject's resolution.
+small (boxes only), then :class:`PersonInBox` on the subject's cropped images: the landmark
+model on the square around each frame's box, for the masks and landmarks at the subject's
+resolution.
 
-Mirrored pass (flip test-time augmentation, pass 2): MediaPipe also sees each frame mirrored
-left-right; its landmarks, mirrored back (:func:`unmirror`), are averaged with the found
+Mirrored pass (flip test-time augmentation, pass 2): the landmark model also sees each frame
+mirrored left-right; its landmarks, mirrored back (:func:`unmirror`), are averaged with the
 person's by confidence (:func:`fuse_mirrored`), which cuts the landmarks' error a little
 (docs/capture.md).
 """
@@ -65,11 +67,21 @@ VISIBLE = 0.5
 ROI_GROWTH = 1.6
 """The square searched around the previous box has this times the box's longest side."""
 
+REGION_GROWTH = 1.25
+"""The square given to the landmark model alone (:class:`RegionPoseEstimator`) has this times the
+previous box's longest side (MediaPipe's own margin around a detected body); 1.5 found fewer
+frames over clutter."""
+
 MAX_SHIFT = 0.5
 """A detection continues the track if its box centre moved at most this many previous-box diagonals..."""
 
 MAX_SCALE_CHANGE = 1.6
 """...and its box diagonal changed by at most this factor (per frame; both loosen with frames lost)."""
+
+MAX_SIDE_CHANGE = 2.5
+"""...and each of its sides by at most this factor: a box of the same diagonal but another shape (a
+wide object beside a standing person) is another thing. Walking strides change a person's box
+width by up to 1.46x between frames at 20 frames/s and 2.3x over four (bench_capture's walks)."""
 
 MIRROR_AGREEMENT = 0.1
 """The mirrored pass's landmarks are fused only if their median 2D distance to the original's,
@@ -173,11 +185,9 @@ class PoseEstimator:
             the detector runs only when the person is lost. Feed it whole frames of one
             video in order (its regions are in image coordinates). Otherwise static-image
             mode: detector then landmarks on every call, for squares that move between calls.
-        smooth: in video mode, MediaPipe's own temporal filter of the landmarks (its
-            default). It lags behind fast limbs; the body fit smooths over time itself.
     """
 
-    def __init__(self, video: bool = False, smooth: bool = True) -> None:
+    def __init__(self, video: bool = False) -> None:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # protobuf deprecation warnings at import
@@ -187,7 +197,6 @@ class PoseEstimator:
         self._pose = pose.Pose(
             static_image_mode=not video,
             model_complexity=MODEL_COMPLEXITY,
-            smooth_landmarks=smooth,
             enable_segmentation=True,
             min_detection_confidence=MIN_DETECTION_CONFIDENCE,
             min_tracking_confidence=MIN_DETECTION_CONFIDENCE,
@@ -211,23 +220,113 @@ class PoseEstimator:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             result = self._pose.process(np.ascontiguousarray(image[y0:y1, x0:x1]))
-        if result.pose_landmarks is None or result.segmentation_mask is None:
-            return None
-        points = result.pose_landmarks.landmark
-        normalised = np.array([[p.x, p.y] for p in points], dtype=np.float64)
-        landmarks_2d = normalised * [x1 - x0, y1 - y0] + [x0, y0]
-        visibility = np.array([p.visibility for p in points], dtype=np.float32)
-        presence = np.array([p.presence for p in points], dtype=np.float32)
-        # The legacy graph leaves presence at 0 (unset); use it only where it is given.
-        confidence = visibility * presence if presence.any() else visibility
-        world = np.array([[p.x, p.y, p.z] for p in result.pose_world_landmarks.landmark], dtype=np.float32)
-        mask = np.zeros((height, width), dtype=bool)
-        segmentation = result.segmentation_mask >= MASK_THRESHOLD
-        mask[y0:y1, x0:x1] = person_components(segmentation, landmarks_2d - [x0, y0], confidence)
-        box = detection_box(mask, landmarks_2d, confidence)
-        if box is None:
-            return None
-        return Detection(landmarks_2d.astype(np.float32), np.clip(confidence, 0, 1), world, mask, box)
+        return _detection(result, (height, width), (x0, y0, x1, y1))
+
+
+REGION_GRAPH = """
+input_stream: "IMAGE:image"
+input_stream: "ROI:roi"
+output_stream: "LANDMARKS:pose_landmarks"
+output_stream: "WORLD_LANDMARKS:pose_world_landmarks"
+output_stream: "SEGMENTATION_MASK:segmentation_mask"
+input_side_packet: "MODEL_COMPLEXITY:model_complexity"
+input_side_packet: "ENABLE_SEGMENTATION:enable_segmentation"
+node {
+  calculator: "PoseLandmarkByRoiCpu"
+  input_stream: "IMAGE:image"
+  input_stream: "ROI:roi"
+  output_stream: "LANDMARKS:pose_landmarks"
+  output_stream: "AUXILIARY_LANDMARKS:auxiliary_landmarks"
+  output_stream: "WORLD_LANDMARKS:pose_world_landmarks"
+  output_stream: "SEGMENTATION_MASK:segmentation_image"
+  input_side_packet: "MODEL_COMPLEXITY:model_complexity"
+  input_side_packet: "ENABLE_SEGMENTATION:enable_segmentation"
+}
+node {
+  calculator: "FromImageCalculator"
+  input_stream: "IMAGE:segmentation_image"
+  output_stream: "IMAGE_CPU:segmentation_mask"
+}
+"""
+"""MediaPipe's pose landmark subgraph alone (the one its Pose solution runs after its detector, or
+on the region its previous landmarks give in video mode), fed a region chosen by the caller."""
+
+
+class RegionPoseEstimator:
+    """MediaPipe's pose landmark model on a given square of an image, without its person detector.
+
+    MediaPipe's detector finds people by their face and upper body, so it misses a back turned
+    to the camera; its landmark model, given the region where the person stands, does not (on
+    bench_capture's back views over a garage, from the true boxes: 98 of 100 frames against the
+    Pose solution's 54). The landmark model still says whether a person is in the region (its
+    presence flag): an empty square gives None. Regions come from the track
+    (:meth:`PersonFinder.__call__`), never from a guess over the whole frame.
+    """
+
+    def __init__(self) -> None:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                from google.protobuf import text_format
+                from mediapipe.framework import calculator_pb2
+                from mediapipe.python.solution_base import PacketDataType, SolutionBase
+        except ImportError:
+            raise PghmError(f"pghm capture needs mediapipe: {INSTALL_HINT}") from None
+        self._graph = SolutionBase(
+            graph_config=text_format.Parse(REGION_GRAPH, calculator_pb2.CalculatorGraphConfig()),
+            side_inputs={"model_complexity": MODEL_COMPLEXITY, "enable_segmentation": True},
+            outputs=["pose_landmarks", "pose_world_landmarks", "segmentation_mask"],
+            stream_type_hints={"roi": PacketDataType.PROTO},
+        )
+
+    def close(self) -> None:
+        self._graph.close()
+
+    def __enter__(self) -> RegionPoseEstimator:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __call__(self, image: np.ndarray, square: Box) -> Detection | None:
+        """The person in the (axis-aligned) ``square`` of ``image`` (H, W, 3) uint8; None if the model finds none.
+
+        The square may reach past the image (MediaPipe pads it)."""
+        from mediapipe.framework.formats import rect_pb2
+
+        height, width = image.shape[:2]
+        centre, side = (square[:2] + square[2:]) / 2, square[2] - square[0]
+        roi = rect_pb2.NormalizedRect(
+            x_center=centre[0] / width, y_center=centre[1] / height, width=side / width, height=side / height
+        )
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result = self._graph.process({"image": np.ascontiguousarray(image), "roi": roi})
+        return _detection(result, (height, width), (0, 0, width, height))
+
+
+def _detection(result, image_size: tuple[int, int], rect: tuple[int, int, int, int]) -> Detection | None:
+    """A MediaPipe pose result on the pixels ``rect`` (x0, y0, x1, y1) of an image of ``image_size``
+    (H, W) as a :class:`Detection` in the image's pixels; None without landmarks, mask or box."""
+    if result.pose_landmarks is None or result.segmentation_mask is None:
+        return None
+    height, width = image_size
+    x0, y0, x1, y1 = rect
+    points = result.pose_landmarks.landmark
+    normalised = np.array([[p.x, p.y] for p in points], dtype=np.float64)
+    landmarks_2d = normalised * [x1 - x0, y1 - y0] + [x0, y0]
+    visibility = np.array([p.visibility for p in points], dtype=np.float32)
+    presence = np.array([p.presence for p in points], dtype=np.float32)
+    # The legacy graph leaves presence at 0 (unset); use it only where it is given.
+    confidence = visibility * presence if presence.any() else visibility
+    world = np.array([[p.x, p.y, p.z] for p in result.pose_world_landmarks.landmark], dtype=np.float32)
+    mask = np.zeros((height, width), dtype=bool)
+    segmentation = result.segmentation_mask >= MASK_THRESHOLD
+    mask[y0:y1, x0:x1] = person_components(segmentation, landmarks_2d - [x0, y0], confidence)
+    box = detection_box(mask, landmarks_2d, confidence)
+    if box is None:
+        return None
+    return Detection(landmarks_2d.astype(np.float32), np.clip(confidence, 0, 1), world, mask, box)
 
 
 def person_components(mask: np.ndarray, landmarks_2d: np.ndarray, confidence: np.ndarray) -> np.ndarray:
@@ -281,15 +380,20 @@ def search_square(box: Box, growth: float = ROI_GROWTH) -> Box:
 def consistent(box: Box, previous: Box, frames_lost: int) -> bool:
     """Whether ``box`` continues a track last seen at ``previous``, ``frames_lost`` frames ago.
 
-    |c - c_prev| <= MAX_SHIFT d_prev (1 + lost) and 1 / s <= d / d_prev <= s with
-    s = MAX_SCALE_CHANGE ** (1 + lost), c the box centre, d its diagonal.
+    |c - c_prev| <= MAX_SHIFT d_prev (1 + lost), 1 / s <= d / d_prev <= s and, for each side k of the
+    box, 1 / t <= k / k_prev <= t, with s = MAX_SCALE_CHANGE ** (1 + lost), t = MAX_SIDE_CHANGE ** (1 + lost),
+    c the box centre, d its diagonal.
     """
-    diagonal, previous_diagonal = np.hypot(*(box[2:] - box[:2])), np.hypot(*(previous[2:] - previous[:2]))
+    sides, previous_sides = box[2:] - box[:2], previous[2:] - previous[:2]
+    diagonal, previous_diagonal = np.hypot(*sides), np.hypot(*previous_sides)
     shift = np.hypot(*((box[:2] + box[2:]) / 2 - (previous[:2] + previous[2:]) / 2))
     slack = 1 + frames_lost
     ratio = diagonal / max(previous_diagonal, 1e-9)
+    side_ratios = sides / np.maximum(previous_sides, 1e-9)
     near = shift <= MAX_SHIFT * previous_diagonal * slack
-    return bool(near and MAX_SCALE_CHANGE ** (-slack) <= ratio <= MAX_SCALE_CHANGE**slack)
+    similar = MAX_SCALE_CHANGE ** (-slack) <= ratio <= MAX_SCALE_CHANGE**slack
+    shaped = bool(np.all((MAX_SIDE_CHANGE ** (-slack) <= side_ratios) & (side_ratios <= MAX_SIDE_CHANGE**slack)))
+    return bool(near and similar and shaped)
 
 
 def _windows(width: int, height: int) -> list[Box]:
@@ -306,27 +410,24 @@ def _area(box: Box) -> float:
 
 
 class PersonFinder:
-    """The tracked person in each frame of one sequence of equally sized frames, fed in order.
+    """The tracked person in each frame of one sequence of equally sized frames, fed in order (pass 1).
 
-    Holds two MediaPipe instances: one in video mode fed every whole frame (it follows the
-    person through frames its detector alone misses, such as a back turned to the camera
-    over clutter), and one in static-image mode for the squares around the previous box and
-    the windows searched to start a track. With ``mirrored``, a third (video mode) sees each
-    frame mirrored left-right, and its landmarks, mirrored back, are fused with the found
-    person's (:func:`fuse_mirrored`: flip test-time augmentation). ``smooth``: MediaPipe's
-    temporal filter of the video-mode landmarks (:class:`PoseEstimator`).
+    Holds three MediaPipe instances: one in video mode fed every whole frame (it follows the
+    person from their landmarks through frames its detector alone misses), one in static-image
+    mode for the squares around the previous box and the windows searched to start a track, and
+    the landmark model alone (:class:`RegionPoseEstimator`) for the square around the previous
+    box when both fail.
     """
 
-    def __init__(self, mirrored: bool = False, smooth: bool = True) -> None:
-        self.video = PoseEstimator(video=True, smooth=smooth)
+    def __init__(self) -> None:
+        self.video = PoseEstimator(video=True)
         self.still = PoseEstimator(video=False)
-        self.mirror = PoseEstimator(video=True, smooth=smooth) if mirrored else None
+        self.region = RegionPoseEstimator()
 
     def close(self) -> None:
         self.video.close()
         self.still.close()
-        if self.mirror is not None:
-            self.mirror.close()
+        self.region.close()
 
     def __enter__(self) -> PersonFinder:
         return self
@@ -337,29 +438,71 @@ class PersonFinder:
     def __call__(self, image: np.ndarray, previous: Box | None, frames_lost: int) -> Detection | None:
         """The person in ``image`` given their box ``previous`` seen ``frames_lost`` frames ago (None: no track).
 
-        With a track: video mode on the whole frame, then the square around ``previous``; a
-        detection counts only if :func:`consistent` with the track. Without: video mode on
-        the whole frame and three windows, the largest person found (see the module docstring).
+        With a track: video mode on the whole frame, then the detector on the square around
+        ``previous``, then the landmark model alone on it; a detection counts only if
+        :func:`consistent` with the track. Without: video mode on the whole frame and three
+        windows, the largest person found (see the module docstring).
         """
-        found = self._find(image, previous, frames_lost)
-        if self.mirror is None:
-            return found
-        mirrored = self.mirror(np.ascontiguousarray(image[:, ::-1]))  # fed every frame: its track stays alive
-        if found is None or mirrored is None:
-            return found
-        return fuse_mirrored(found, unmirror(mirrored, image.shape[1]))
-
-    def _find(self, image: np.ndarray, previous: Box | None, frames_lost: int) -> Detection | None:
         followed = self.video(image)
         if previous is not None:
             if followed is not None and consistent(followed.box, previous, frames_lost):
                 return followed
             found = self.still(image, search_square(previous))
+            if found is None or not consistent(found.box, previous, frames_lost):
+                found = self.region(image, search_square(previous, REGION_GROWTH))
             return found if found is not None and consistent(found.box, previous, frames_lost) else None
         height, width = image.shape[:2]
         candidates = [followed, *(self.still(image, window) for window in _windows(width, height))]
         candidates = [c for c in candidates if c is not None]
         return max(candidates, key=lambda c: _area(c.box)) if candidates else None
+
+
+class PersonInBox:
+    """The person measured in a box known to hold them (pass 2: each frame's box from pass 1).
+
+    The landmark model alone on the square around the box (:class:`RegionPoseEstimator`), the
+    detector on a wider square if it finds no one there; the answer counts only if
+    :func:`consistent` with the box. Frames are independent: no temporal filter, no state
+    carried from frame to frame. With ``mirrored``, the landmark model also sees the frame
+    mirrored left-right (the square mirrored with it), and its landmarks, mirrored back, are
+    fused with the person's (:func:`fuse_mirrored`: flip test-time augmentation).
+
+    Given the track's box, rather than the region video mode carries from its own previous
+    landmarks, the landmarks drift less in clutter: on bench_capture's garage video PA-MPJPE 54.7
+    -> 47.1 mm (docs/capture.md, "Pass 2: the person in the track's box").
+    """
+
+    def __init__(self, mirrored: bool = False) -> None:
+        self.region = RegionPoseEstimator()
+        self.still = PoseEstimator(video=False)
+        self.mirror = RegionPoseEstimator() if mirrored else None
+
+    def close(self) -> None:
+        self.region.close()
+        self.still.close()
+        if self.mirror is not None:
+            self.mirror.close()
+
+    def __enter__(self) -> PersonInBox:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __call__(self, image: np.ndarray, box: Box) -> Detection | None:
+        """The person in ``image`` (H, W, 3) uint8 whose box is about ``box``; None if not found there."""
+        square = search_square(box, REGION_GROWTH)
+        found = self.region(image, square)
+        if found is None or not consistent(found.box, box, frames_lost=0):
+            found = self.still(image, search_square(box))
+            if found is None or not consistent(found.box, box, frames_lost=0):
+                return None
+        if self.mirror is None:
+            return found
+        width = image.shape[1]
+        mirrored_square = np.array([width - square[2], square[1], width - square[0], square[3]])
+        mirrored = self.mirror(np.ascontiguousarray(image[:, ::-1]), mirrored_square)
+        return found if mirrored is None else fuse_mirrored(found, unmirror(mirrored, width))
 
 
 MIRROR_ORDER = permutation(BODY_PAIRS)

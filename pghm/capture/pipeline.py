@@ -28,7 +28,7 @@ from pghm.capture.crop import Region, crop_intrinsics, frame_box, person_region,
 from pghm.capture.frontend import (
     NUM_LANDMARKS,
     Observations,
-    PersonFinder,
+    PersonInBox,
     Track,
     native_logs_silenced,
     track_person,
@@ -37,10 +37,6 @@ from pghm.capture.video import ImageFolder, VideoFile, open_source, scaled_size
 from pghm.data.subject import SubjectArrays, write_image, write_subject
 from pghm.errors import PghmError, listed
 from pghm.io.outputs import check_output, staged_folder
-
-SMOOTH_LANDMARKS = False
-"""MediaPipe's temporal filter of the landmarks in pass 2 (pass 1, which only tracks, keeps it):
-off, the landmarks follow fast limbs; the body fit smooths over time itself."""
 
 TRACKING_SIZE = 512
 """Longest side of the frames the person is tracked on (pass 1), pixels."""
@@ -128,13 +124,13 @@ def _observe(
     last = int(track.frame_index[-1])
     frames = source.frames(region, out_size, config.every, config.max_frames)
     with (
-        PersonFinder(mirrored=config.mirror_pass, smooth=SMOOTH_LANDMARKS) as find,
+        PersonInBox(mirrored=config.mirror_pass) as measure,
         _bar(config, count, "masks, landmarks") as bar,
     ):
         for index, image in frames:
             if index in boxes:
                 box = to_region(boxes[index].reshape(2, 2), region, out_size).reshape(4)
-                found = find(image, box, frames_lost=0)
+                found = measure(image, box)
                 if found is None:
                     lost.append(index)
                 else:
