@@ -69,7 +69,7 @@ ROI_GROWTH = 1.6
 
 REGION_GROWTH = 1.25
 """The square given to the landmark model alone (:class:`RegionPoseEstimator`) has this times the
-previous box's longest side (MediaPipe's own margin around a detected body); 1.5 found fewer
+track's box's longest side (MediaPipe's own margin around a detected body); 1.5 found fewer
 frames over clutter."""
 
 MAX_SHIFT = 0.5
@@ -259,8 +259,9 @@ class RegionPoseEstimator:
     to the camera; its landmark model, given the region where the person stands, does not (on
     bench_capture's back views over a garage, from the true boxes: 98 of 100 frames against the
     Pose solution's 54). The landmark model still says whether a person is in the region (its
-    presence flag): an empty square gives None. Regions come from the track
-    (:meth:`PersonFinder.__call__`), never from a guess over the whole frame.
+    presence flag): an empty square gives None. Regions come from the track (the previous
+    frame's box in :class:`PersonFinder`, the frame's own in :class:`PersonInBox`), never from a
+    guess over the whole frame.
     """
 
     def __init__(self) -> None:
