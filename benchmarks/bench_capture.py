@@ -47,6 +47,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from common import DOCS, RESULTS, ROOT, load_average, print_table, write_json
@@ -56,6 +57,9 @@ from pghm.capture.crop import Region, crop_intrinsics, from_region
 from pghm.data.subject import Subject, check, read_mask
 from pghm.data.synth.poses import MOTION_KINDS
 from pghm.data.synth.video import WalkTruth, graded_background, render_walk_video, walk_config
+
+if TYPE_CHECKING:
+    import matplotlib.axes
 
 TARGETS = {
     "iou_plain": 0.95,
@@ -339,16 +343,24 @@ REFINE_STEPS = 30
 def fit_and_eval(subject_dir: Path, avatar: Path) -> dict:
     """``pghm fit`` (defaults, the shipped prior) then ``pghm eval --split test`` three times: with
     the stored poses, with the fit's pose track (``--fit-poses``), and with the poses refined
-    against the test images (the avatar frozen); summaries and seconds."""
-    started = time.perf_counter()
+    against the test images (the avatar frozen); summaries and seconds.
+
+    An avatar or report already in a ``--keep`` folder is reused (``pghm fit`` and ``pghm eval``
+    write whole files or none), so an interrupted d run resumes where it stopped; its fit's
+    seconds are those recorded beside it (``None`` when it was not recorded).
+    """
     pghm = [sys.executable, "-m", "pghm.cli.main"]
-    subprocess.run([*pghm, "fit", str(subject_dir), "--prior", str(PRIOR), "--out", str(avatar)], check=True)
-    fit_seconds = time.perf_counter() - started
-    out = {"fit_seconds": round(fit_seconds, 1)}
+    timing = avatar.with_suffix(".fit_seconds.json")
+    if not avatar.exists():
+        started = time.perf_counter()
+        subprocess.run([*pghm, "fit", str(subject_dir), "--prior", str(PRIOR), "--out", str(avatar)], check=True)
+        timing.write_text(json.dumps(round(time.perf_counter() - started, 1)))
+    out = {"fit_seconds": json.loads(timing.read_text()) if timing.exists() else None}
     for name, poses in (("", []), ("track_", ["--fit-poses"]), ("refined_", ["--refine-poses", str(REFINE_STEPS)])):
         report = avatar.with_suffix(f".{name}eval.json")
         evaluate = [*pghm, "eval", str(avatar), str(subject_dir), "--split", "test", "--report", str(report)]
-        subprocess.run([*evaluate, *poses], check=True)
+        if not report.exists():
+            subprocess.run([*evaluate, *poses], check=True)
         summary = json.loads(report.read_text())["mean"]
         out.update({f"{name}psnr": float(summary["psnr"]), f"{name}ssim": float(summary["ssim"])})
     return out
@@ -427,7 +439,10 @@ def plot_metrics(rows: list[dict], path: Path) -> None:
         ("PA-MPJPE (mm)", "pa_mpjpe_mm", [("", TARGETS["pa_mpjpe_mm"])], "lower"),
         ("2D joint error (% of height)", "reproj_pct", [("", TARGETS["reproj_pct"])], "lower"),
     ]
-    figure, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.6))
+    gaps = all("psnr_gap_db" in r for r in rows)
+    figure, axes = plt.subplots(1, len(panels) + gaps, figsize=(4.2 * (len(panels) + gaps), 3.6))
+    if gaps:
+        gap_panel(axes[-1], rows, labels)
     for ax, (title, key, targets, better) in zip(axes, panels):
         ax.bar(x, [r[key] for r in rows], color=colours)
         for name, value in targets:
@@ -442,18 +457,40 @@ def plot_metrics(rows: list[dict], path: Path) -> None:
     plt.close(figure)
 
 
+GAP_BARS = (("psnr_gap_db", "stored poses", "#9aa3ad"), ("psnr_gap_track_db", "fit poses", "#4c9be8"))
+GAP_BARS += (("psnr_gap_refined_db", "refined poses", "#3bb273"),)
+"""d's three gaps per case: the key, its legend and its colour."""
+
+
+def gap_panel(ax: matplotlib.axes.Axes, rows: list[dict], labels: list[str]) -> None:
+    """d: each case's PSNR gap to its true-pose reference, with the stored, fit and refined poses."""
+    width = 0.8 / len(GAP_BARS)
+    for i, (key, name, colour) in enumerate(GAP_BARS):
+        ax.bar(np.arange(len(rows)) + (i - 1) * width, [r[key] for r in rows], width, color=colour, label=name)
+    ax.axhline(TARGETS["psnr_gap_db"], color="k", linestyle="--", linewidth=1)
+    ax.axhline(0.0, color="k", linewidth=0.5)
+    ax.text(len(rows) - 0.5, TARGETS["psnr_gap_db"], "target", va="bottom", ha="right", fontsize=8)
+    ax.set_title("d. PSNR gap to the true-pose fit, dB (lower is better)", fontsize=10)
+    ax.set_xticks(np.arange(len(rows)), labels, fontsize=7)
+    ax.legend(fontsize=7)
+
+
 # ------------------------------------------------------------------ main
 
 
 def capture_case(
-    work: Path, seed: int, kind: str, frames: int, fit: bool, motion: str = "walk"
+    work: Path, seed: int, kind: str, frames: int, fit: bool, motion: str = "walk", true_masks: bool = True
 ) -> tuple[dict, np.ndarray]:
-    """Video, capture, metrics (and the fits with ``fit``) of one seed x background: the row and its tiles."""
+    """Video, capture, metrics (and the fits with ``fit``) of one seed x background: the row and its tiles.
+
+    d's second reference (the true masks too) is fitted only with ``true_masks``.
+    """
     name = f"{kind}_{seed}_{frames}f" if motion == "walk" else f"{motion}_{kind}_{seed}_{frames}f"
     video = work / f"{name}.mp4"
     config = walk_config(frames, *SIZE, motion=motion)
     truth = render_walk_video(config, seed, video, background(kind, seed, *SIZE), progress=True)
     subject_dir = work / name
+    shutil.rmtree(subject_dir, ignore_errors=True)  # a --keep folder's subjects are made again; its fits are reused
     run = run_capture(video, subject_dir, work / f"{name}.log")
     comparison = measure(truth, subject_dir)
     row = {
@@ -469,17 +506,20 @@ def capture_case(
     }
     if fit:
         row["fit"] = {"captured": fit_and_eval(subject_dir, work / f"{kind}_{seed}_captured.pt")}
-        for name, true_masks in (("poses", False), ("all", True)):
+        for name, with_true_masks in (("poses", False), ("all", True))[: 2 if true_masks else 1]:
             reference = work / f"{kind}_{seed}_{frames}f_true_{name}"
-            reference_subject(truth, video, subject_dir, reference, true_masks)
+            shutil.rmtree(reference, ignore_errors=True)
+            reference_subject(truth, video, subject_dir, reference, with_true_masks)
             row["fit"][f"true_{name}"] = fit_and_eval(reference, work / f"{kind}_{seed}_true_{name}.pt")
-        captured, poses, every = (row["fit"][k] for k in ("captured", "true_poses", "true_all"))
+        captured, poses = row["fit"]["captured"], row["fit"]["true_poses"]
         row["psnr_gap_db"] = round(poses["psnr"] - captured["psnr"], 2)
         # Against the reference's own poses: they are the true ones, its track corrects only noise.
         row["psnr_gap_track_db"] = round(poses["psnr"] - captured["track_psnr"], 2)
         row["psnr_gap_refined_db"] = round(poses["refined_psnr"] - captured["refined_psnr"], 2)
-        row["psnr_gap_all_db"] = round(every["psnr"] - captured["psnr"], 2)
-        row["psnr_gap_all_refined_db"] = round(every["refined_psnr"] - captured["refined_psnr"], 2)
+        if true_masks:
+            every = row["fit"]["true_all"]
+            row["psnr_gap_all_db"] = round(every["psnr"] - captured["psnr"], 2)
+            row["psnr_gap_all_refined_db"] = round(every["refined_psnr"] - captured["refined_psnr"], 2)
     return row, frame_tiles(truth, video, subject_dir, comparison)
 
 
@@ -675,7 +715,13 @@ def main() -> int:
         nargs="*",
         default=None,
         metavar="BACKGROUND_SEED",
-        help="run d on these cases, e.g. plain_0 cluttered_1 (no value: plain_0); expensive: ~2 fits of 3-6 min each",
+        help="run d on these cases, e.g. plain_0 cluttered_1 (no value: plain_0); expensive: three fits a case, "
+        "the captured one 20-40 min of one core",
+    )
+    parser.add_argument(
+        "--no-true-masks",
+        action="store_true",
+        help="d without its second reference (true masks as well as true poses): two fits a case, not three",
     )
     parser.add_argument("--keep", help="keep the videos and subjects here instead of a temporary folder")
     parser.add_argument(
@@ -705,7 +751,8 @@ def main() -> int:
         rows, tiles, speed = [], [], None
         for seed in args.seeds:
             for kind in args.backgrounds:
-                row, tile = capture_case(work, seed, kind, args.frames, f"{kind}_{seed}" in fit_cases, args.motion)
+                fit = f"{kind}_{seed}" in fit_cases
+                row, tile = capture_case(work, seed, kind, args.frames, fit, args.motion, not args.no_true_masks)
                 rows.append(row)
                 tiles.append(tile)
                 report(args, rows, tiles, speed, load_before)  # each case as it ends: a long run keeps what it measured
