@@ -457,21 +457,25 @@ def plot_metrics(rows: list[dict], path: Path) -> None:
     plt.close(figure)
 
 
-GAP_BARS = (("psnr_gap_db", "stored poses", "#9aa3ad"), ("psnr_gap_track_db", "fit poses", "#4c9be8"))
-GAP_BARS += (("psnr_gap_refined_db", "refined poses", "#3bb273"),)
+GAP_BARS = (
+    ("psnr_gap_db", "stored poses", "#9aa3ad"),
+    ("psnr_gap_track_db", "fit poses", "#4c9be8"),
+    ("psnr_gap_refined_db", "refined poses", "#3bb273"),
+)
 """d's three gaps per case: the key, its legend and its colour."""
 
 
 def gap_panel(ax: matplotlib.axes.Axes, rows: list[dict], labels: list[str]) -> None:
     """d: each case's PSNR gap to its true-pose reference, with the stored, fit and refined poses."""
-    width = 0.8 / len(GAP_BARS)
+    x, width = np.arange(len(rows)), 0.8 / len(GAP_BARS)
     for i, (key, name, colour) in enumerate(GAP_BARS):
-        ax.bar(np.arange(len(rows)) + (i - 1) * width, [r[key] for r in rows], width, color=colour, label=name)
+        offset = (i - (len(GAP_BARS) - 1) / 2) * width  # the bars of a case side by side, centred on it
+        ax.bar(x + offset, [r[key] for r in rows], width, color=colour, label=name)
     ax.axhline(TARGETS["psnr_gap_db"], color="k", linestyle="--", linewidth=1)
     ax.axhline(0.0, color="k", linewidth=0.5)
     ax.text(len(rows) - 0.5, TARGETS["psnr_gap_db"], "target", va="bottom", ha="right", fontsize=8)
     ax.set_title("d. PSNR gap to the true-pose fit, dB (lower is better)", fontsize=10)
-    ax.set_xticks(np.arange(len(rows)), labels, fontsize=7)
+    ax.set_xticks(x, labels, fontsize=7)
     ax.legend(fontsize=7)
 
 
@@ -506,7 +510,8 @@ def capture_case(
     }
     if fit:
         row["fit"] = {"captured": fit_and_eval(subject_dir, work / f"{kind}_{seed}_captured.pt")}
-        for name, with_true_masks in (("poses", False), ("all", True))[: 2 if true_masks else 1]:
+        references = [("poses", False), ("all", True)] if true_masks else [("poses", False)]
+        for name, with_true_masks in references:
             reference = work / f"{kind}_{seed}_{frames}f_true_{name}"
             shutil.rmtree(reference, ignore_errors=True)
             reference_subject(truth, video, subject_dir, reference, with_true_masks)
