@@ -113,11 +113,14 @@ def test_the_landmark_model_alone_is_the_last_resort_and_must_continue_the_track
     finder.video, finder.still, finder.region = (
         estimator("video", elsewhere), estimator("still", None), estimator("region", here)
     )  # fmt: skip
+    finder.pedestrians = lambda image: calls.append(("pedestrians", None)) or []
     assert finder(np.zeros((400, 400, 3), np.uint8), previous, frames_lost=0) is here
     assert [name for name, _ in calls] == ["video", "still", "region"]
     np.testing.assert_allclose(calls[2][1], search_square(previous, REGION_GROWTH))
+    calls.clear()
     finder.region = estimator("region", elsewhere)
     assert finder(np.zeros((400, 400, 3), np.uint8), previous, frames_lost=0) is None
+    assert [name for name, _ in calls] == ["video", "still", "region", "pedestrians"]
 
 
 def test_pass_two_asks_the_landmark_model_in_the_box_first_then_the_detector():

@@ -18,7 +18,10 @@ previous box's, its size within a factor :data:`MAX_SCALE_CHANGE` and each side 
 :data:`MAX_SIDE_CHANGE`, all loosened for each frame the person has been lost. With no
 track (the first frame, or after :data:`LOST_RESET` frames without the person), the whole
 frame and three square windows along its long side are searched and the largest person
-found starts the track: the person filmed is the one the camera frames.
+found starts the track: the person filmed is the one the camera frames. When MediaPipe's
+detector sees no one (a back turned to the camera over clutter, for dozens of frames), OpenCV's
+pedestrian detector proposes where upright people stand (:mod:`pghm.capture.pedestrians`),
+and the landmark model alone, on each proposal's square, says whether a person is there.
 
 Masks: MediaPipe's segmentation (thresholded at :data:`MASK_THRESHOLD`) can include other
 people or clutter beside the person; only its connected components that hold one of the
@@ -46,6 +49,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pghm.capture.pedestrians import PedestrianProposals, confirmed
 from pghm.capture.swaps import ARM_PAIRS, BODY_PAIRS, LEG_PAIRS, Landmarks, left_right_axis, permutation, traded
 from pghm.errors import PghmError
 
@@ -417,13 +421,15 @@ class PersonFinder:
     person from their landmarks through frames its detector alone misses), one in static-image
     mode for the squares around the previous box and the windows searched to start a track, and
     the landmark model alone (:class:`RegionPoseEstimator`) for the square around the previous
-    box when both fail.
+    box when both fail, and for OpenCV's pedestrian proposals
+    (:class:`~pghm.capture.pedestrians.PedestrianProposals`) when MediaPipe finds no one.
     """
 
     def __init__(self) -> None:
         self.video = PoseEstimator(video=True)
         self.still = PoseEstimator(video=False)
         self.region = RegionPoseEstimator()
+        self.pedestrians = PedestrianProposals()
 
     def close(self) -> None:
         self.video.close()
@@ -440,9 +446,10 @@ class PersonFinder:
         """The person in ``image`` given their box ``previous`` seen ``frames_lost`` frames ago (None: no track).
 
         With a track: video mode on the whole frame, then the detector on the square around
-        ``previous``, then the landmark model alone on it; a detection counts only if
-        :func:`consistent` with the track. Without: video mode on the whole frame and three
-        windows, the largest person found (see the module docstring).
+        ``previous``, then the landmark model alone on it, then on each pedestrian proposal's
+        square; a detection counts only if :func:`consistent` with the track. Without: video
+        mode on the whole frame and three windows, else the proposals the landmark model
+        confirms; the largest person found (see the module docstring).
         """
         followed = self.video(image)
         if previous is not None:
@@ -451,11 +458,22 @@ class PersonFinder:
             found = self.still(image, search_square(previous))
             if found is None or not consistent(found.box, previous, frames_lost):
                 found = self.region(image, search_square(previous, REGION_GROWTH))
-            return found if found is not None and consistent(found.box, previous, frames_lost) else None
+            if found is not None and consistent(found.box, previous, frames_lost):
+                return found
+            return next((d for d in self._proposed(image) if consistent(d.box, previous, frames_lost)), None)
         height, width = image.shape[:2]
         candidates = [followed, *(self.still(image, window) for window in _windows(width, height))]
-        candidates = [c for c in candidates if c is not None]
+        candidates = [c for c in candidates if c is not None] or self._proposed(image)
         return max(candidates, key=lambda c: _area(c.box)) if candidates else None
+
+    def _proposed(self, image: np.ndarray) -> list[Detection]:
+        """The people the landmark model confirms on the squares of OpenCV's pedestrian proposals."""
+        found = []
+        for proposal in self.pedestrians(image):
+            detection = self.region(image, search_square(proposal, REGION_GROWTH))
+            if confirmed(None if detection is None else detection.box, proposal):
+                found.append(detection)
+        return found
 
 
 class PersonInBox:
