@@ -23,8 +23,11 @@ MAX_PROPOSALS = 3
 
 WIN_STRIDE = (8, 8)
 PADDING = (16, 16)
-SCALE_STEP = 1.05
-"""OpenCV's detectMultiScale sampling (its documented pedestrian settings)."""
+"""OpenCV's detectMultiScale sampling (its pedestrian sample's settings)..."""
+
+SCALE_STEP = 1.1
+"""...but a coarser pyramid than its 1.05: 0.035 s a 512 x 384 frame instead of 0.085, and the same
+walker found on bench_capture's held-out garage."""
 
 MIN_AGREEMENT = 0.5
 """A proposal is confirmed when the landmark model's person box overlaps it by at least this IoU
