@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from bench_capture import person_height_px
 from common import DOCS, load_average, print_table, setup_threads, write_json
 
 from pghm.body import BodyModel, load_body
@@ -105,15 +106,19 @@ def frame_psnr(avatar: Avatar, data: TrainingData, corrections: PoseCorrections 
     return np.array(values)
 
 
+def frame_keys(data: TrainingData) -> torch.Tensor:
+    """(n,) the held-out images' rows in ``data``'s pose corrections (:attr:`Sample.frame_key`)."""
+    return torch.as_tensor(data.subjects[0].arrays.frame_index[data.images[0]] + data.frame_offsets[0])
+
+
 def corrected_poses(data: TrainingData, corrections: PoseCorrections | None) -> tuple[np.ndarray, np.ndarray]:
     """(n, J, 3) rotations and (n, 3) translations of the held-out images as rendered."""
     arrays, indices = data.subjects[0].arrays, data.images[0]
     rotations = torch.as_tensor(arrays.rotations[indices], dtype=torch.float32)
     translation = torch.as_tensor(arrays.translation[indices], dtype=torch.float32)
     if corrections is not None:
-        keys = torch.as_tensor(arrays.frame_index[indices] + data.frame_offsets[0])
         with torch.no_grad():
-            rotations, translation = corrections(keys, rotations, translation)
+            rotations, translation = corrections(frame_keys(data), rotations, translation)
     return rotations.double().numpy(), translation.double().numpy()
 
 
@@ -136,9 +141,23 @@ def joints_of(body: BodyModel, data: TrainingData, rotations: np.ndarray, transl
 def truth_of(body: BodyModel, data: TrainingData) -> Truth:
     joints, uv = joints_of(body, data, *corrected_poses(data, None))
     masks = np.stack([data.subjects[0][int(i)].mask > 0.5 for i in data.images[0]])
-    rows = masks.any(axis=2)
-    height = rows.shape[1] - rows[:, ::-1].argmax(axis=1) - rows.argmax(axis=1)
-    return Truth(joints, uv, height.astype(np.float64))
+    return Truth(joints, uv, person_height_px(masks))
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A case's true-pose avatar on its held-out frames: what both parts of the bench compare with."""
+
+    avatar: Avatar
+    data: TrainingData
+    truth: Truth
+    psnr: np.ndarray  # (n,) at the true poses
+
+
+def reference_of(case: Case, body: BodyModel) -> Reference:
+    avatar = load_avatar(case.reference_avatar)
+    data = TrainingData(case.reference_subject, split="test")
+    return Reference(avatar, data, truth_of(body, data), frame_psnr(avatar, data, None))
 
 
 def errors(body: BodyModel, truth: Truth, joints: np.ndarray, uv: np.ndarray) -> dict:
@@ -162,26 +181,22 @@ def noise_corrections(
     noisy_r, noisy_t = add_pose_noise(
         rotations, translation, bones, level * CAPTURE_NOISE[0], level * CAPTURE_NOISE[1], rng
     )
-    keys = torch.as_tensor(data.subjects[0].arrays.frame_index[data.images[0]] + data.frame_offsets[0])
+    keys = frame_keys(data)
     with torch.no_grad():
         corrections.rotations[keys] = torch.as_tensor(noisy_r[:, bones] - rotations[:, bones], dtype=torch.float32)
         corrections.translation[keys] = torch.as_tensor(noisy_t - translation, dtype=torch.float32)
     return corrections, noisy_r, noisy_t
 
 
-def sweep(case: Case, body: BodyModel, levels: list[float], draws: int) -> list[dict]:
+def sweep(case: Case, reference: Reference, body: BodyModel, levels: list[float], draws: int) -> list[dict]:
     """Rows (level, draw) of the reference avatar at noisy held-out poses: PSNR drop and joint errors."""
-    avatar = load_avatar(case.reference_avatar)
-    data = TrainingData(case.reference_subject, split="test")
-    truth = truth_of(body, data)
-    clean = frame_psnr(avatar, data, None)
     rows = []
     for level in levels:
         for draw in range(draws):
             rng = np.random.default_rng([draw, round(1000 * level)])
-            corrections, rotations, translation = noise_corrections(data, body, level, rng)
-            noisy = frame_psnr(avatar, data, corrections)
-            joints, uv = joints_of(body, data, rotations, translation)
+            corrections, rotations, translation = noise_corrections(reference.data, body, level, rng)
+            noisy = frame_psnr(reference.avatar, reference.data, corrections)
+            joints, uv = joints_of(body, reference.data, rotations, translation)
             rows.append(
                 {
                     "case": case.name,
@@ -189,29 +204,27 @@ def sweep(case: Case, body: BodyModel, levels: list[float], draws: int) -> list[
                     "sigma_deg": round(math.degrees(level * CAPTURE_NOISE[0]), 2),
                     "sigma_cm": round(100 * level * CAPTURE_NOISE[1], 2),
                     "draw": draw,
-                    "psnr_drop_db": float((clean - noisy).mean()),
-                    **errors(body, truth, joints, uv),
+                    "psnr_drop_db": float((reference.psnr - noisy).mean()),
+                    **errors(body, reference.truth, joints, uv),
                 }
             )
     return rows
 
 
-def captured(case: Case, body: BodyModel) -> list[dict]:
+def captured(case: Case, reference: Reference, body: BodyModel) -> list[dict]:
     """The captured avatar's held-out poses (stored, its track, refined): joint errors and d's gap."""
-    reference = load_avatar(case.reference_avatar)
-    reference_data = TrainingData(case.reference_subject, split="test")
-    truth = truth_of(body, reference_data)
-    reference_psnr = frame_psnr(reference, reference_data, None)
     avatar = load_avatar(case.captured_avatar)
     data = TrainingData(case.captured_subject, split="test")
-    if not np.array_equal(data.images[0], reference_data.images[0]):
+    if not np.array_equal(data.images[0], reference.data.images[0]):
         raise SystemExit(f"{case.name}: the captured and reference subjects hold different test images")
     loss = FitConfig().stage2.loss
-    reference_refined = test_poses.refine_poses(reference, reference_data, REFINE_STEPS, loss, POSE_LR, progress=False)
-    refined_reference_psnr = frame_psnr(reference, reference_data, reference_refined)
+    reference_refined = test_poses.refine_poses(
+        reference.avatar, reference.data, REFINE_STEPS, loss, POSE_LR, progress=False
+    )
+    refined_reference_psnr = frame_psnr(reference.avatar, reference.data, reference_refined)
     choices = {
-        "stored": (None, reference_psnr),
-        "track": (track_corrections(avatar.pose_track, data, body)[0], reference_psnr),
+        "stored": (None, reference.psnr),
+        "track": (track_corrections(avatar.pose_track, data, body)[0], reference.psnr),
         "refined": (
             test_poses.refine_poses(avatar, data, REFINE_STEPS, loss, POSE_LR, progress=False),
             refined_reference_psnr,
@@ -225,7 +238,7 @@ def captured(case: Case, body: BodyModel) -> list[dict]:
                 "case": case.name,
                 "poses": poses,
                 "gap_db": float((against - frame_psnr(avatar, data, corrections)).mean()),
-                **errors(body, truth, joints, uv),
+                **errors(body, reference.truth, joints, uv),
             }
         )
     return rows
@@ -316,10 +329,13 @@ def main() -> int:
     found = cases(args.keep)
     if not found:
         raise SystemExit("no captured and reference avatars in the --keep folders")
-    rows = [row for case in found for row in sweep(case, body, args.levels, args.draws)]
+    rows, points = [], []
+    for case in found:
+        reference = reference_of(case, body)
+        rows += sweep(case, reference, body, args.levels, args.draws)
+        points += [] if args.no_captured else captured(case, reference, body)
     means = level_means(rows)
     print_table(means)
-    points = [] if args.no_captured else [row for case in found for row in captured(case, body)]
     if points:
         print_table(points)
     crossings = {key: crossing(means, key) for key in ERRORS}

@@ -1,4 +1,5 @@
-"""Videos for the capture tests: written with imageio-ffmpeg, and the real phone video's frames.
+"""Videos for the capture tests: written with imageio-ffmpeg, and the real phone video's frames;
+and the fake detection the front end's ordering tests hand around.
 
 The real video (``shared/data/video/outdoor_dribble_40f.mp4``, never copied into the
 repository) is looked for in a ``shared/`` folder beside the repository or beside one of
@@ -18,6 +19,8 @@ from typing import NoReturn
 
 import numpy as np
 import pytest
+
+from pghm.capture.frontend import Detection
 
 ROOT = Path(__file__).resolve().parent.parent
 REAL_VIDEO_PATH = Path("shared") / "data" / "video" / "outdoor_dribble_40f.mp4"
@@ -105,3 +108,8 @@ def real_frames(count: int, longest: int = 256) -> np.ndarray:
     size = scaled_size(full, longest)
     size = (size[0] - size[0] % 2, size[1] - size[1] % 2)  # H.264 needs even sizes
     return np.stack([image for _, image in source.frames(full, size, max_frames=count)])
+
+
+def detection_at(box: np.ndarray) -> Detection:
+    """A front-end detection that is only its (4,) box: for tests of which answer the front end takes."""
+    return Detection(np.zeros((33, 2), np.float32), np.zeros(33, np.float32), np.zeros((33, 3), np.float32), None, box)

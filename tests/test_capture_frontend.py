@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from capture_videos import real_frames, require_mediapipe, require_real_video, write_video
+from capture_videos import detection_at, real_frames, require_mediapipe, require_real_video, write_video
 from PIL import Image
 
 from pghm.capture.config import CaptureConfig
@@ -12,7 +12,6 @@ from pghm.capture.crop import Region, crop_intrinsics, from_region, person_regio
 from pghm.capture.frontend import (
     REGION_GROWTH,
     VISIBLE,
-    Detection,
     PersonFinder,
     PersonInBox,
     RegionPoseEstimator,
@@ -91,15 +90,11 @@ def test_track_consistency():
     assert consistent(stride, box, frames_lost=0)
 
 
-def _detection_at(box: np.ndarray) -> Detection:
-    return Detection(np.zeros((33, 2), np.float32), np.zeros(33, np.float32), np.zeros((33, 3), np.float32), None, box)
-
-
 def test_the_landmark_model_alone_is_the_last_resort_and_must_continue_the_track():
     """With a track, the finder asks the video-mode tracker, then the detector on the square around the
     previous box, then the landmark model alone on that square; each answer counts only if consistent."""
     previous = np.array([100.0, 100.0, 160.0, 260.0])
-    elsewhere, here = _detection_at(previous + 300), _detection_at(previous + 5)
+    elsewhere, here = detection_at(previous + 300), detection_at(previous + 5)
     calls = []
 
     def estimator(name, answer):
@@ -127,7 +122,7 @@ def test_pass_two_asks_the_landmark_model_in_the_box_first_then_the_detector():
     """PersonInBox: the landmark model alone on the square around the track's box; the detector on
     the wider square only when the first answer is missing or inconsistent with the box."""
     box = np.array([100.0, 100.0, 160.0, 260.0])
-    here, elsewhere = _detection_at(box + 3), _detection_at(box + 300)
+    here, elsewhere = detection_at(box + 3), detection_at(box + 300)
     calls = []
 
     def estimator(name, answer):

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from capture_videos import require_mediapipe
+from capture_videos import detection_at, require_mediapipe
 
-from pghm.capture.frontend import REGION_GROWTH, Detection, PersonFinder, search_square
+from pghm.capture.frontend import REGION_GROWTH, PersonFinder, search_square
 from pghm.capture.pedestrians import MIN_AGREEMENT, MIN_UPRIGHT, box_iou, confirmed
 
 
@@ -41,10 +41,6 @@ def test_an_image_smaller_than_the_detector_window_gives_no_proposal():
         assert propose(np.full((height, width, 3), 128, np.uint8)) == []
 
 
-def _detection_at(box: np.ndarray) -> Detection:
-    return Detection(np.zeros((33, 2), np.float32), np.zeros(33, np.float32), np.zeros((33, 3), np.float32), None, box)
-
-
 def _finder(video, still, region, proposals: list[np.ndarray]) -> PersonFinder:
     finder = PersonFinder.__new__(PersonFinder)
     finder.video, finder.still, finder.region = video, still, region
@@ -58,7 +54,7 @@ def test_without_a_track_proposals_start_one_only_when_mediapipe_finds_no_one():
     detector finds someone, no proposal is asked for."""
     image = np.zeros((400, 400, 3), np.uint8)
     proposal = np.array([100.0, 50.0, 200.0, 300.0])
-    person = _detection_at(np.array([110.0, 60.0, 190.0, 290.0]))
+    person = detection_at(np.array([110.0, 60.0, 190.0, 290.0]))
     asked = []
 
     def region(image, square):
@@ -68,9 +64,9 @@ def test_without_a_track_proposals_start_one_only_when_mediapipe_finds_no_one():
     finder = _finder(lambda image, roi=None: None, lambda image, roi=None: None, region, [proposal])
     assert finder(image, None, frames_lost=0) is person
     np.testing.assert_allclose(asked[0], search_square(proposal, REGION_GROWTH))
-    finder.region = lambda image, square: _detection_at(np.array([100.0, 200.0, 300.0, 300.0]))  # wide, elsewhere
+    finder.region = lambda image, square: detection_at(np.array([100.0, 200.0, 300.0, 300.0]))  # wide, elsewhere
     assert finder(image, None, frames_lost=0) is None
-    seen = _detection_at(np.array([10.0, 10.0, 60.0, 150.0]))
+    seen = detection_at(np.array([10.0, 10.0, 60.0, 150.0]))
     finder = _finder(lambda image, roi=None: seen, lambda image, roi=None: None, region, [proposal])
     asked.clear()
     assert finder(image, None, frames_lost=0) is seen and not asked
@@ -82,7 +78,7 @@ def test_a_lost_track_takes_a_proposal_only_if_it_continues_the_track():
     image = np.zeros((400, 400, 3), np.uint8)
     previous = np.array([100.0, 50.0, 180.0, 250.0])
     near, far = np.array([105.0, 55.0, 205.0, 305.0]), np.array([290.0, 50.0, 390.0, 300.0])
-    people = {tuple(search_square(p, REGION_GROWTH)): _detection_at(p + [5, 5, -5, -5]) for p in (near, far)}
+    people = {tuple(search_square(p, REGION_GROWTH)): detection_at(p + [5, 5, -5, -5]) for p in (near, far)}
 
     def nobody(image, roi=None):
         return None

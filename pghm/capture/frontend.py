@@ -463,17 +463,16 @@ class PersonFinder:
             return next((d for d in self._proposed(image) if consistent(d.box, previous, frames_lost)), None)
         height, width = image.shape[:2]
         candidates = [followed, *(self.still(image, window) for window in _windows(width, height))]
-        candidates = [c for c in candidates if c is not None] or self._proposed(image)
+        candidates = [c for c in candidates if c is not None] or list(self._proposed(image))
         return max(candidates, key=lambda c: _area(c.box)) if candidates else None
 
-    def _proposed(self, image: np.ndarray) -> list[Detection]:
-        """The people the landmark model confirms on the squares of OpenCV's pedestrian proposals."""
-        found = []
+    def _proposed(self, image: np.ndarray) -> Iterator[Detection]:
+        """The people the landmark model confirms on the squares of OpenCV's pedestrian proposals,
+        best proposal first (lazily: a track takes the first that continues it)."""
         for proposal in self.pedestrians(image):
             detection = self.region(image, search_square(proposal, REGION_GROWTH))
             if confirmed(None if detection is None else detection.box, proposal):
-                found.append(detection)
-        return found
+                yield detection
 
 
 class PersonInBox:
