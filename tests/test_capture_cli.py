@@ -168,3 +168,29 @@ def test_switches_reach_the_config(tmp_path, capsys, monkeypatch, options, mirro
     code, _ = run_capture(tmp_path, capsys, video, *options)
     assert code == 0 and len(seen) == 1
     assert seen[0].mirror_pass is mirror_pass and seen[0].pose_prior is pose_prior
+
+
+def test_polish_needs_a_prior(tmp_path, capsys):
+    """--polish is checked before the video is read: a missing file or an avatar (not a prior) is one line."""
+    from pathlib import Path
+
+    video = tmp_path / "clip.mp4"
+    video.write_bytes(b"")  # never read: the prior is refused first
+    code, lines = run_capture(tmp_path, capsys, video, "--polish", str(tmp_path / "nowhere.pt"))
+    assert_refused(tmp_path, code, lines, "--polish", "nowhere.pt: no such prior file")
+    avatar = Path(__file__).resolve().parent.parent / "assets" / "avatar.pt"
+    code, lines = run_capture(tmp_path, capsys, video, "--polish", str(avatar))
+    assert_refused(tmp_path, code, lines, "avatar.pt: a personalised avatar, not a prior")
+
+
+def test_polish_reaches_the_config(tmp_path, capsys, monkeypatch):
+    import pghm.capture.pipeline
+
+    seen = []
+    monkeypatch.setattr(pghm.capture.pipeline, "capture", lambda input, out, config: seen.append(config) or out)
+    video = tmp_path / "clip.mp4"
+    video.write_bytes(b"")  # never read: capture is replaced
+    prior = tmp_path / "prior.pt"
+    prior.write_bytes(b"")
+    assert run_capture(tmp_path, capsys, video)[0] == 0 and seen[-1].polish is None
+    assert run_capture(tmp_path, capsys, video, "--polish", str(prior))[0] == 0 and seen[-1].polish == str(prior)

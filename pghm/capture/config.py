@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pghm.errors import PghmError
+from pghm.io.avatar import recorded_path
 
 if TYPE_CHECKING:
     from pghm.capture.bodyfit import BodyFitConfig
@@ -83,6 +85,11 @@ class CaptureConfig:
     fit keeps only its per-joint L2 prior and joint limits: for motions far from the clips it
     was learned from (walking, sitting), such as dancing."""
 
+    polish: str | None = None
+    """A prior file (``pghm train-prior``'s, e.g. assets/prior.pt): after the body fit, align every
+    frame's pose to its image through an avatar personalised from it on all frames
+    (:mod:`pghm.capture.polish`; about 18 minutes per 100 frames on 2 cores). None: off."""
+
     progress: bool = True
     """A tqdm bar per stage on stderr."""
 
@@ -109,6 +116,8 @@ class CaptureConfig:
             raise PghmError(f"crop_margin must be in [0, 1], got {self.crop_margin}")
         if self.min_frames < 2:
             raise PghmError(f"min_frames must be >= 2, got {self.min_frames}")
+        if self.polish is not None and not Path(self.polish).is_file():
+            raise PghmError(f"--polish {self.polish}: no such prior file")
         return self
 
     def source_intrinsics(self, width: int, height: int) -> np.ndarray | None:
@@ -129,4 +138,5 @@ class CaptureConfig:
         """The options, for meta.json (the body fit's settings as it gives them, or null)."""
         values = {key: value for key, value in asdict(self).items() if key not in ("body", "progress")}
         values["body"] = asdict(self.body) if self.body is not None else None
+        values["polish"] = recorded_path(self.polish) if self.polish is not None else None
         return values

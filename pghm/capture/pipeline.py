@@ -227,10 +227,28 @@ def capture(
     """
     config = (config or CaptureConfig()).validate()
     out = check_output(out, inputs=[input], folder=True)
+    if config.polish is not None:
+        _check_polish_prior(config.polish)
     with staged_folder(out) as folder:
         front = observe_video(input, folder, config, on_warning)
         _write(folder, config, front)
+        if config.polish is not None:
+            from pghm.capture.polish import polish_poses
+
+            polish_poses(folder, config.polish)
     return out
+
+
+def _check_polish_prior(path: str) -> None:
+    """Raise :class:`PghmError` unless ``path`` is a prior of the anny body: checked before the video is
+    read, so that a wrong file fails in a second, not after the front end and the body fit."""
+    from pghm.io.avatar import load_avatar
+
+    prior = load_avatar(path)
+    if prior.kind != "prior":
+        raise PghmError(f"--polish {path}: a personalised avatar, not a prior (pghm train-prior's file)")
+    if prior.body_name != "anny":
+        raise PghmError(f"--polish {path}: a prior of the '{prior.body_name}' body; a capture fits anny")
 
 
 def _write(folder: Path, config: CaptureConfig, front: FrontEnd) -> None:

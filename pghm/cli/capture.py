@@ -1,7 +1,8 @@
 """``pghm capture``: a video of a person becomes a subject folder (docs/capture.md).
 
     pghm capture INPUT --out SUBJECT [--every N] [--max-frames N] [--size PX]
-                 [--fov DEG | --focal PX] [--test-every N] [--no-mirror-pass] [--quiet]
+                 [--fov DEG | --focal PX] [--test-every N] [--no-mirror-pass] [--no-pose-prior]
+                 [--polish PRIOR] [--quiet]
 
 INPUT is a video file (mp4, mov, webm, avi, anything ffmpeg reads) or a folder of images.
 Needs the ``capture`` extra (mediapipe): ``pip install 'pghm[capture]'``.
@@ -36,6 +37,7 @@ def _capture(args: argparse.Namespace) -> int:
         test_every=args.test_every,
         mirror_pass=not args.no_mirror_pass,
         pose_prior=not args.no_pose_prior,
+        polish=args.polish,
         progress=not args.quiet,
     )
     out = capture(args.input, args.out, config)
@@ -93,6 +95,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="fit the body without the pose prior learned from motion capture (walking, sitting); "
         "for motions far from those, such as dancing",
+    )
+    parser.add_argument(
+        "--polish",
+        metavar="PRIOR",
+        default=None,
+        help="align every frame's pose to its image through an avatar fitted from this prior on all frames "
+        "(e.g. assets/prior.pt; about 18 minutes per 100 frames on 2 cores)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.set_defaults(func=_capture)

@@ -73,6 +73,11 @@ def image_name(index: int) -> str:
     return f"{index:0{IMAGE_DIGITS}d}.png"
 
 
+ALL_SPLIT = "all"
+"""The name that selects every image of a subject (unless splits.json defines a split of that name):
+``pghm capture --polish`` fits on all of a video's frames."""
+
+
 @dataclass
 class SubjectArrays:
     """Everything about a subject except its images: n images, J bones, S shape values.
@@ -528,7 +533,9 @@ class Subject:
         return list(self.arrays.splits)
 
     def split(self, name: str) -> SubjectSplit:
-        """The frames of split ``name`` ("train", "test", ...)."""
+        """The frames of split ``name`` ("train", "test", ...); :data:`ALL_SPLIT`: every image."""
+        if name == ALL_SPLIT and name not in self.arrays.splits:
+            return SubjectSplit(self, name, list(range(len(self))))
         if name not in self.arrays.splits:
             raise DatasetError(f"{self.directory}: no split '{name}' (has {', '.join(self.arrays.splits) or 'none'})")
         return SubjectSplit(self, name, self.arrays.splits[name])

@@ -124,6 +124,9 @@ class FitConfig:
     """L of the avatar's UV maps; None: the prior's. Another L carries the prior's weights over
     (:meth:`PGHM.at_resolution`): (L / L_prior)^2 times as many Gaussians, finer detail, longer
     fits and slower viewing (docs/training.md, "Resolution, steps and image size")."""
+    split: str = "train"
+    """The subject's split the avatar is fitted on (:data:`pghm.data.subject.ALL_SPLIT`: every
+    image, as ``pghm capture --polish`` does to align every frame's pose)."""
     lpips: bool = True
     body_model_path: str | None = None
 
@@ -196,7 +199,7 @@ def fit(
         if getattr(config, name) is not None:
             check_learning_rate(name, getattr(config, name))
     out = Path(out)
-    data = TrainingData(subject_dir, pose_smoothing=config.pose_smoothing)
+    data = TrainingData(subject_dir, split=config.split, pose_smoothing=config.pose_smoothing)
     if data.num_identities != 1:
         raise PghmError(f"{subject_dir}: fit takes one subject folder, found {data.num_identities}")
     if config.pose_lr is None:
