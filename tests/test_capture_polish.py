@@ -24,14 +24,17 @@ def test_every_image_is_a_split_of_its_own(tiny_dataset):
     assert train | test == set(range(len(subject))) and not train & test
 
 
-def test_polish_adds_each_frames_settled_correction(tiny_dataset, tmp_path, monkeypatch):
+def test_polish_adds_each_frames_settled_correction(tiny_dataset, tmp_path, monkeypatch, capsys):
     subject_dir = tmp_path / "subject"
     shutil.copytree(tiny_dataset / "subject_000", subject_dir)
     before = Subject.open(subject_dir)
     fitted = []
     monkeypatch.setattr(polish, "fit", _recording(fitted))
     stages = [LoopConfig(steps=n, images_per_shard=2, checkpoint_every=1) for n in (1, 2)]
-    record = polish.polish_poses(subject_dir, ModelConfig(**TINY_MODEL), FitConfig(*stages, lpips=False))
+    record = polish.polish_poses(
+        subject_dir, ModelConfig(**TINY_MODEL), FitConfig(*stages, lpips=False), progress=False
+    )
+    assert "fit" not in capsys.readouterr().err  # no bar of its stages or of the settling
 
     (avatar,) = fitted
     assert avatar.metadata["training_images"] == len(before)  # both splits: every image

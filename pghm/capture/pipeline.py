@@ -235,7 +235,7 @@ def capture(
         if config.polish is not None:
             from pghm.capture.polish import polish_poses
 
-            polish_poses(folder, config.polish)
+            polish_poses(folder, config.polish, progress=config.progress)
     return out
 
 

@@ -41,17 +41,24 @@ corrections are what the polish keeps."""
 
 
 def polish_poses(
-    subject_dir: str | Path, prior: str | Path | Avatar | ModelConfig, config: FitConfig | None = None
+    subject_dir: str | Path,
+    prior: str | Path | Avatar | ModelConfig,
+    config: FitConfig | None = None,
+    progress: bool = True,
 ) -> dict:
     """Align every frame's stored pose in the subject folder ``subject_dir`` to its image (module
     docstring), rewriting its poses.npz and adding meta.json's ``polish`` record, which is returned.
 
     ``prior``: the prior to personalise (a file, a loaded prior, or a :class:`ModelConfig` to start
     from scratch, for tests); ``config``: the fit's settings (default: ``pghm fit``'s), whose split
-    and settling steps the polish sets.
+    and settling steps the polish sets; ``progress``: the fit's bars on stderr.
     """
     subject_dir = Path(subject_dir)
     config = replace(config or FitConfig(), split=ALL_SPLIT, track_steps=POLISH_TRACK_STEPS, refine_poses=True)
+    if not progress:
+        config = replace(
+            config, stage1=replace(config.stage1, progress=False), stage2=replace(config.stage2, progress=False)
+        )
     started = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix=".polish-", dir=subject_dir) as scratch:
         avatar = fit(subject_dir, prior, Path(scratch) / "polish.pt", config)

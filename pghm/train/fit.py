@@ -292,7 +292,16 @@ def fit(
         if config.track_steps:
             started = time.perf_counter()
             loss = config.stage2.loss
-            refine_poses(avatar, data, config.track_steps, loss, POSE_LR, corrections, desc="fit: settle poses")
+            refine_poses(
+                avatar,
+                data,
+                config.track_steps,
+                loss,
+                POSE_LR,
+                corrections,
+                progress=config.stage2.progress,
+                desc="fit: settle poses",
+            )
             avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
         avatar.pose_track = learned_track(corrections, data)
     save_avatar(out, avatar)

@@ -75,6 +75,8 @@ class LoopConfig:
     max_grad_norm: float = 1.0
     """Gradient clipping threshold (global L2 norm)."""
     loss: LossWeights = field(default_factory=LossWeights)
+    progress: bool = True
+    """A tqdm bar of the stage's steps on stderr (rank 0's)."""
     background: str = "white"
     """What the targets are composited on and the renders drawn on, one of
     :data:`pghm.train.background.BACKGROUND_KINDS`: ``white`` (the paper's stored targets) or a
@@ -365,7 +367,12 @@ def run_stage(
 
     set_lr()
     progress = tqdm(
-        total=config.steps, initial=state.step, desc=description, disable=rank != 0, dynamic_ncols=True, leave=True
+        total=config.steps,
+        initial=state.step,
+        desc=description,
+        disable=rank != 0 or not config.progress,
+        dynamic_ncols=True,
+        leave=True,
     )
     started = time.perf_counter() - state.seconds
     try:
