@@ -51,10 +51,13 @@ def polish_poses(
 
     ``prior``: the prior to personalise (a file, a loaded prior, or a :class:`ModelConfig` to start
     from scratch, for tests); ``config``: the fit's settings (default: ``pghm fit``'s), whose split
-    and settling steps the polish sets; ``progress``: the fit's bars on stderr.
+    and pose settings (corrections of the stored poses, settled) the polish sets; ``progress``: the
+    fit's bars on stderr.
     """
     subject_dir = Path(subject_dir)
-    config = replace(config or FitConfig(), split=ALL_SPLIT, track_steps=POLISH_TRACK_STEPS, refine_poses=True)
+    config = replace(
+        config or FitConfig(), split=ALL_SPLIT, track_steps=POLISH_TRACK_STEPS, refine_poses=True, pose_smoothing=0.0
+    )
     if not progress:
         config = replace(
             config, stage1=replace(config.stage1, progress=False), stage2=replace(config.stage2, progress=False)
