@@ -69,12 +69,12 @@ def polish_poses(
     arrays = subject.arrays
     track = avatar.pose_track
     frames = arrays.frame_index if arrays.frame_index is not None else np.arange(len(arrays))
-    rows = np.searchsorted(track.frames.numpy(), frames)
+    delta_r, delta_t, _, _ = track.at(frames, max_gap=0)  # every frame was trained on: its own row
     bones = track.bones.numpy()
     rotations = np.array(arrays.rotations, dtype=np.float32)
-    rotations[:, bones] += track.rotations.numpy()[rows]
-    translation = np.asarray(arrays.translation, dtype=np.float32) + track.translation.numpy()[rows]
-    angles = np.linalg.norm(track.rotations.numpy()[rows], axis=-1)
+    rotations[:, bones] += delta_r.numpy()
+    translation = np.asarray(arrays.translation, dtype=np.float32) + delta_t.numpy()
+    angles = np.linalg.norm(delta_r.numpy(), axis=-1)
     moved = np.linalg.norm(translation - arrays.translation, axis=1)
     record = {
         "prior": recorded_path(prior) if isinstance(prior, (str, Path)) else "(in memory)",
