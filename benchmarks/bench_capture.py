@@ -71,12 +71,12 @@ TARGETS = {
     "psnr_gap_track_db": 1.5,
     "psnr_gap_refined_db": 1.5,
     "psnr_gap_polished_db": 1.5,
-    "polished_mpjpe_mm": 80.0,
-    "polished_pa_mpjpe_mm": 50.0,
-    "polished_reproj_pct": 2.0,
     "seconds_300": 120.0,
     "peak_gb": 2.0,
 }
+JOINT_KEYS = ("mpjpe_mm", "pa_mpjpe_mm", "reproj_pct")
+"""b and c's figures of a row (and, prefixed ``polished_``, of its polished capture, held to the same targets)."""
+TARGETS |= {f"polished_{key}": TARGETS[key] for key in JOINT_KEYS}
 BACKGROUNDS = ("plain", "cluttered")
 PLAIN_COLOURS = (
     ((118, 128, 138), (168, 156, 136)),
@@ -603,8 +603,6 @@ def speed_case(work: Path, frames: int) -> dict:
 HELD_OUT_SEEDS = frozenset({3})
 """Seeds no setting of the capture was chosen on: in the table and the per-video verdicts, left out of
 the means over the tuned seeds."""
-JOINT_KEYS = ("mpjpe_mm", "pa_mpjpe_mm", "reproj_pct")
-"""b and c's figures of a row (and, prefixed ``polished_``, of its polished capture)."""
 GAP_KEYS = ("psnr_gap_db", "psnr_gap_track_db", "psnr_gap_refined_db", "psnr_gap_polished_db")
 """d's gaps, judged against the true-pose reference's fit."""
 
