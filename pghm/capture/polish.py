@@ -70,12 +70,12 @@ def polish_poses(
     track = avatar.pose_track
     frames = arrays.frame_index if arrays.frame_index is not None else np.arange(len(arrays))
     delta_r, delta_t, _, _ = track.at(frames, max_gap=0)  # every frame was trained on: its own row
-    bones = track.bones.numpy()
+    delta_r, delta_t = delta_r.numpy(), delta_t.numpy()  # (F, K, 3) axis-angle, (F, 3) metres
     rotations = np.array(arrays.rotations, dtype=np.float32)
-    rotations[:, bones] += delta_r.numpy()
-    translation = np.asarray(arrays.translation, dtype=np.float32) + delta_t.numpy()
-    angles = np.linalg.norm(delta_r.numpy(), axis=-1)
-    moved = np.linalg.norm(translation - arrays.translation, axis=1)
+    rotations[:, track.bones.numpy()] += delta_r
+    translation = np.asarray(arrays.translation, dtype=np.float32) + delta_t
+    angles = np.linalg.norm(delta_r, axis=-1)
+    moved = np.linalg.norm(delta_t, axis=-1)
     record = {
         "prior": recorded_path(prior) if isinstance(prior, (str, Path)) else "(in memory)",
         "frames": len(frames),
