@@ -56,7 +56,7 @@ PAD_COLOUR = "0x556677"
 TILE_SIZE = 320
 """Pixels of a panel's height (and of the square its whole frame is fitted in)."""
 TILE_GAP = 8
-FIGURE_COLUMNS = 3
+FIGURE_COLUMNS = 5
 JOINTS_COLOUR, ORIGINAL_COLOUR = (255, 60, 200), (40, 220, 90)
 
 
@@ -116,6 +116,7 @@ VARIANTS = (
         "[0:v]scale=540:960,split[a][b];[b]hflip,scale=378:672,pad=540:960:81:200:color=gray[c];[a][c]hstack",
         scale=0.5,
     ),
+    Variant("cut off", "filmed too close: the frame ends at the knees", "crop=1080:1250:0:0"),
     Variant("dark", "underexposed and noisy (dusk, indoors)", "eq=brightness=-0.25:contrast=0.7,noise=alls=12:allf=t"),
     Variant("compressed", "heavily compressed (x264 CRF 40, a messaging app's)", "null", crf=40),
     Variant("reversed", "played backwards (the tracker starts from the last frame)", "reverse", reversed=True),

@@ -8,7 +8,7 @@ from capture_videos import detection_at, real_frames, require_mediapipe, require
 from PIL import Image
 
 from pghm.capture.config import CaptureConfig
-from pghm.capture.crop import Region, crop_intrinsics, from_region, person_region, to_region
+from pghm.capture.crop import Region, crop_intrinsics, edge_pixels, frame_edges, from_region, person_region, to_region
 from pghm.capture.frontend import (
     REGION_GROWTH,
     VISIBLE,
@@ -269,6 +269,38 @@ def test_frames_without_the_person_are_dropped_with_one_warning(subject_folder):
     assert front.dropped == [3, 5]
     assert len(warnings) == 1 and "2 of 10 frames (3, 5)" in warnings[0] and "gaps.mp4" in warnings[0]
     assert len(list((subject_folder / "subject" / "images").glob("*.png"))) == 8
+
+
+def test_frame_edges_are_those_the_region_reaches():
+    assert frame_edges(Region(0, 0, 100, 50), 100, 50) == ["left", "top", "right", "bottom"]
+    assert frame_edges(Region(10, 0, 90, 40), 100, 50) == ["top", "right"]
+    assert frame_edges(Region(1, 1, 98, 48), 100, 50) == []
+
+
+def test_edge_pixels_is_the_covered_share_of_the_outermost_line():
+    masks = np.zeros((2, 4, 10), bool)
+    masks[0, -1, :3] = True  # 3 of the bottom row's 10 pixels, and 1 of the left column's 4
+    masks[1, :, 0] = True  # the whole left column, and 1 pixel of the top and bottom rows
+    np.testing.assert_allclose(edge_pixels(masks, "bottom"), [0.3, 0.1])
+    np.testing.assert_allclose(edge_pixels(masks, "left"), [0.25, 1.0])
+    np.testing.assert_allclose(edge_pixels(masks, "top"), [0.0, 0.1])
+    np.testing.assert_allclose(edge_pixels(masks, "right"), [0.0, 0.0])
+
+
+KNEES = 0.65
+"""Of the real video's height: the rows kept to cut its frames at the person's knees."""
+
+
+def test_a_person_cut_off_by_the_frame_is_named_in_one_warning(subject_folder):
+    """The real video cut at the knees: every frame is kept, and one warning names the bottom edge and
+    the frames (the uncut video warns of nothing: test_real_video_first_frames)."""
+    require_mediapipe()
+    frames = real_frames(8)
+    rows = int(KNEES * frames.shape[1]) // 2 * 2
+    front, warnings = observe(write_video(subject_folder / "cut.mp4", frames[:, :rows]), subject_folder)
+    assert len(front.observations.frame_index) == 8
+    assert len(warnings) == 1
+    assert "cut.mp4" in warnings[0] and "(bottom) in 8 of 8 frames (0, 1, 2, 3, 4, 5, 6, 7)" in warnings[0]
 
 
 def test_native_logs_are_silenced_but_python_messages_are_not():

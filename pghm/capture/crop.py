@@ -88,3 +88,18 @@ def from_region(points: np.ndarray, region: Region, out_size: tuple[int, int]) -
     """Inverse of :func:`to_region`: (..., 2) pixels of the cropped images -> pixels of the full frame."""
     scale = np.array([region.width / out_size[1], region.height / out_size[0]])
     return points * scale + np.array([region.x, region.y])
+
+
+FRAME_EDGES = ("left", "top", "right", "bottom")
+
+
+def frame_edges(region: Region, width: int, height: int) -> list[str]:
+    """The edges of the W x H frame that ``region`` reaches (:data:`FRAME_EDGES` names, in that order)."""
+    reached = (region.x == 0, region.y == 0, region.x + region.width == width, region.y + region.height == height)
+    return [edge for edge, on in zip(FRAME_EDGES, reached) if on]
+
+
+def edge_pixels(masks: np.ndarray, edge: str) -> np.ndarray:
+    """(F,) the fraction of the outermost row or column on ``edge`` that each (F, H, W) mask covers."""
+    line = {"left": masks[:, :, 0], "top": masks[:, 0, :], "right": masks[:, :, -1], "bottom": masks[:, -1, :]}[edge]
+    return np.asarray(line).mean(axis=1)

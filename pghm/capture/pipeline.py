@@ -24,7 +24,16 @@ import numpy as np
 from tqdm import tqdm
 
 from pghm.capture.config import CaptureConfig
-from pghm.capture.crop import Region, crop_intrinsics, frame_box, person_region, to_region
+from pghm.capture.crop import (
+    FRAME_EDGES,
+    Region,
+    crop_intrinsics,
+    edge_pixels,
+    frame_box,
+    frame_edges,
+    person_region,
+    to_region,
+)
 from pghm.capture.frontend import (
     NUM_LANDMARKS,
     Observations,
@@ -48,6 +57,16 @@ SHOWN_FRAMES = 12
 """Frame numbers listed in a message before "and N more"."""
 
 WHITE = 255
+
+CUT_EDGE_FRACTION = 0.02
+"""A mask reaches past the frame on an edge when it covers more than this fraction of the image's
+outermost row or column there: more than a fingertip. On the real video cut at the knees the legs
+cover 16 % of the bottom row (median over its frames); a walker's feet that reach the bottom of
+bench_capture's frames, up to 11 %."""
+CUT_FRAMES_FRACTION = 0.25
+"""The share of the kept frames with the person running out of the frame from which capture warns:
+below it (a stride that reaches the edge now and then) the body fit's smoothness carries the
+frames across; above it, most of the video only shows part of the body."""
 
 POSE_NOISE = {"rotation_std_deg": 9.5, "translation_std_m": 0.05}
 """The error of a capture's poses, written to meta.json as the scale of ``pghm fit``'s prior on its
@@ -208,8 +227,28 @@ def observe_video(
             f"{source.name}: person not found in {len(dropped)} of {track.frames_read} frames "
             f"({listed(dropped, SHOWN_FRAMES)}); those frames are dropped"
         )
+    cut = _cut_by_frame(observations.masks, region, source.width, source.height)
+    if cut and len(cut) >= CUT_FRAMES_FRACTION * len(observations.frame_index):
+        edges = ", ".join(sorted({edge for k in cut for edge in cut[k]}, key=FRAME_EDGES.index))
+        frames = listed([int(observations.frame_index[k]) for k in cut], SHOWN_FRAMES)
+        on_warning(
+            f"{source.name}: the person runs out of the frame ({edges}) in {len(cut)} of "
+            f"{len(observations.frame_index)} frames ({frames}); the body there is guessed: film the whole body in view"
+        )
     size = (source.width, source.height)
     return FrontEnd(observations, source.name, size, track.frames_read, dropped, region, source.fps)
+
+
+def _cut_by_frame(masks: np.ndarray, region: Region, width: int, height: int) -> dict[int, list[str]]:
+    """Kept frame k -> the frame's edges its (F, H, W) mask crosses (:data:`CUT_EDGE_FRACTION`), for the
+    frames whose person runs out of the W x H frame; an edge the crop does not reach is inside the frame."""
+    crossed = {edge: edge_pixels(masks, edge) > CUT_EDGE_FRACTION for edge in frame_edges(region, width, height)}
+    cut = {}
+    for k in range(len(masks)):
+        edges = [edge for edge, flags in crossed.items() if flags[k]]
+        if edges:
+            cut[k] = edges
+    return cut
 
 
 def capture(
