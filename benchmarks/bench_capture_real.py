@@ -10,7 +10,8 @@ through an ffmpeg filter whose effect on a pixel is known,
 and on the frame order (reversed or not; ``--every`` keeps the source frame numbers), so
 its capture, mapped back through that map, can be held against the original video's capture:
 
-- kept: the frames the capture kept, of those it read;
+- kept: the frames the capture kept, of those it read; cut: those whose person runs out of the frame
+  (meta.json's ``cut_frames``);
 - mask IoU: the variant's mask against the original's mapped into the variant's frame;
 - 2D: the canonical joints each capture's camera projects, the variant's mapped back, apart by
   this % of the person's height (the original mask's extent), mean over the shared frames;
@@ -302,6 +303,7 @@ def main() -> int:
                 {
                     "variant": variant.name,
                     "kept": f"{len(captured.frames)}/{counts['frames_read']}",
+                    "cut": len(counts["cut_frames"]),
                     **figures,
                     "check_problems": len(check(subject)),
                     "seconds": round(run.seconds, 1),
@@ -312,7 +314,7 @@ def main() -> int:
             if middle is not None:
                 pictures.append((variant.name, panel(video, original, captured, variant, middle)))
             print(f"{variant.name}: done ({run.seconds:.0f} s)", flush=True)
-    columns = ["variant", "kept", "shared_frames", "mask_iou", "joints_2d_pct", "pa_mpjpe_mm", "check_problems"]
+    columns = ["variant", "kept", "cut", "shared_frames", "mask_iou", "joints_2d_pct", "pa_mpjpe_mm", "check_problems"]
     print_table(rows, [*columns, "seconds", "peak_gb"])
     figure = DOCS / "capture_real_variants.png"
     plot_panels(pictures, figure)

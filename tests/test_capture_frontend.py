@@ -218,7 +218,7 @@ def test_real_video_first_frames(subject_folder):
     require_mediapipe()
     front, warnings = observe(require_real_video(), subject_folder, max_frames=8)
     obs = front.observations
-    assert warnings == []
+    assert warnings == [] and front.cut == []
     assert obs.frame_index.tolist() == list(range(8))
     height, width = obs.image_size
     assert max(height, width) == 512
@@ -298,7 +298,7 @@ def test_a_person_cut_off_by_the_frame_is_named_in_one_warning(subject_folder):
     frames = real_frames(8)
     rows = int(KNEES * frames.shape[1]) // 2 * 2
     front, warnings = observe(write_video(subject_folder / "cut.mp4", frames[:, :rows]), subject_folder)
-    assert len(front.observations.frame_index) == 8
+    assert len(front.observations.frame_index) == 8 and front.cut == list(range(8))
     assert len(warnings) == 1
     assert "cut.mp4" in warnings[0] and "(bottom) in 8 of 8 frames (0, 1, 2, 3, 4, 5, 6, 7)" in warnings[0]
 
