@@ -25,7 +25,6 @@ from tqdm import tqdm
 
 from pghm.capture.config import CaptureConfig
 from pghm.capture.crop import (
-    FRAME_EDGES,
     Region,
     crop_intrinsics,
     edge_pixels,
@@ -229,29 +228,22 @@ def observe_video(
             f"{source.name}: person not found in {len(dropped)} of {track.frames_read} frames "
             f"({listed(dropped, SHOWN_FRAMES)}); those frames are dropped"
         )
-    cut = _cut_by_frame(observations.masks, region, source.width, source.height)
-    cut_frames = [int(observations.frame_index[k]) for k in cut]
-    if cut and len(cut) >= CUT_FRAMES_FRACTION * len(observations.frame_index):
-        edges = ", ".join(sorted({edge for k in cut for edge in cut[k]}, key=FRAME_EDGES.index))
+    # Each edge the frame ends at -> (F,) whether each kept frame's mask crosses it.
+    crossed = {
+        edge: edge_pixels(observations.masks, edge) > CUT_EDGE_FRACTION
+        for edge in frame_edges(region, source.width, source.height)
+    }
+    cut = np.logical_or.reduce([*crossed.values(), np.zeros(len(observations.frame_index), bool)])
+    cut_frames = observations.frame_index[cut].tolist()
+    if cut.any() and cut.sum() >= CUT_FRAMES_FRACTION * len(cut):
+        edges = ", ".join(edge for edge, flags in crossed.items() if flags.any())
         on_warning(
-            f"{source.name}: the person runs out of the frame ({edges}) in {len(cut)} of "
-            f"{len(observations.frame_index)} frames ({listed(cut_frames, SHOWN_FRAMES)}); "
+            f"{source.name}: the person runs out of the frame ({edges}) in {cut.sum()} of "
+            f"{len(cut)} frames ({listed(cut_frames, SHOWN_FRAMES)}); "
             "the body there is guessed: film the whole body in view"
         )
     size = (source.width, source.height)
     return FrontEnd(observations, source.name, size, track.frames_read, dropped, region, source.fps, cut_frames)
-
-
-def _cut_by_frame(masks: np.ndarray, region: Region, width: int, height: int) -> dict[int, list[str]]:
-    """Kept frame k -> the frame's edges its (F, H, W) mask crosses (:data:`CUT_EDGE_FRACTION`), for the
-    frames whose person runs out of the W x H frame; an edge the crop does not reach is inside the frame."""
-    crossed = {edge: edge_pixels(masks, edge) > CUT_EDGE_FRACTION for edge in frame_edges(region, width, height)}
-    cut = {}
-    for k in range(len(masks)):
-        edges = [edge for edge, flags in crossed.items() if flags[k]]
-        if edges:
-            cut[k] = edges
-    return cut
 
 
 def capture(
