@@ -202,16 +202,14 @@ class Crop:
 
 
 def read_video(path: Path, frames: set[int]) -> dict[int, np.ndarray]:
-    """Decoded (H, W, 3) uint8 frames of the video at the indices ``frames``."""
-    import imageio_ffmpeg
+    """(H, W, 3) uint8 frames of the video at the indices ``frames``, upright and in SDR as capture reads them."""
+    from pghm.capture.crop import Region
+    from pghm.capture.video import open_source
 
-    reader = imageio_ffmpeg.read_frames(str(path))
-    width, height = next(reader)["size"]
-    return {
-        i: np.frombuffer(raw, dtype=np.uint8).reshape(height, width, 3).copy()
-        for i, raw in enumerate(reader)
-        if i in frames
-    }
+    source = open_source(path)
+    size = (source.height, source.width)
+    read = source.frames(Region.full(source.width, source.height), size, max_frames=max(frames) + 1)
+    return {i: image.copy() for i, image in read if i in frames}
 
 
 def person_height_px(masks: np.ndarray) -> np.ndarray:

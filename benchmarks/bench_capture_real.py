@@ -17,6 +17,9 @@ its capture, mapped back through that map, can be held against the original vide
   this % of the person's height (the original mask's extent), mean over the shared frames;
 - PA: PA-MPJPE (mm) between the two captures' 3D joints in camera coordinates, the mirrored
   variant's mirrored back (x -> -x, left and right swapped);
+- colour: the person's mean colour in the subject's images (inside its mask), the two captures'
+  apart by this many grey levels (0-255; the largest channel, mean over the shared frames): what
+  the avatar's colours are learned from;
 - seconds and peak memory of the capture (a child process, as bench_capture.py's e).
 
 The reference is the original's capture, not the truth: the figures say how far the capture
@@ -46,7 +49,8 @@ from common import DOCS, ROOT, load_average, print_table, write_json
 from PIL import Image
 
 from pghm.capture.crop import to_region
-from pghm.data.subject import Subject, check, image_name, read_mask
+from pghm.capture.video import REFERENCE_WHITE_NITS
+from pghm.data.subject import Subject, check, image_name, read_mask, read_rgb
 
 REAL_VIDEO = Path("shared") / "data" / "video" / "outdoor_dribble_40f.mp4"
 """The real phone video, in a ``shared/`` folder beside the repository (or beside a parent of it)."""
@@ -54,6 +58,12 @@ CRF = 18
 """x264's quality of every re-encoded variant but the compressed one: visually lossless."""
 PAD_COLOUR = "0x556677"
 """The wall a scaled-down video is padded with (a muted blue-grey)."""
+HEVC_10BIT = (
+    "-c:v", "libx265", "-crf", str(CRF), "-pix_fmt", "yuv420p10le", "-tag:v", "hvc1", "-x265-params", "log-level=error",
+)  # fmt: skip
+"""How many phones store video: HEVC, 10 bits a sample."""
+HDR_ENCODE = (*HEVC_10BIT, "-color_primaries", "bt2020", "-colorspace", "bt2020nc", "-color_range", "tv")
+"""How an iPhone stores HDR: 10-bit HEVC in BT.2020; the transfer's tag is the variant's."""
 TILE_SIZE = 320
 """Pixels of a panel's height (and of the square its whole frame is fitted in)."""
 TILE_GAP = 8
@@ -66,7 +76,8 @@ class Variant:
     """The real video through ``filter`` (an ffmpeg filter graph; None: the video itself).
 
     ``scale``, ``offset`` and ``mirrored``: the pixel map of the module docstring; ``reversed``:
-    the frames in reverse order; ``crf``: x264's quality; ``options``: extra ``pghm capture`` options.
+    the frames in reverse order; ``crf``: x264's quality; ``encode``: ffmpeg's output options instead
+    of x264's at ``crf``; ``options``: extra ``pghm capture`` options.
     """
 
     name: str
@@ -77,6 +88,7 @@ class Variant:
     mirrored: bool = False
     reversed: bool = False
     crf: int = CRF
+    encode: tuple[str, ...] | None = None
     options: tuple[str, ...] = ()
 
     def to_variant(self, xy: np.ndarray, width: int) -> np.ndarray:
@@ -122,6 +134,22 @@ VARIANTS = (
     Variant("compressed", "heavily compressed (x264 CRF 40, a messaging app's)", "null", crf=40),
     Variant("reversed", "played backwards (the tracker starts from the last frame)", "reverse", reversed=True),
     Variant("every 2", "every second frame (--every 2)", options=("--every", "2")),
+    Variant(
+        "anamorphic",
+        "stored half as wide, pixels stated twice as wide as tall (a camcorder's)",
+        "scale=540:1920,setsar=2",
+    ),
+    Variant("10-bit", "10-bit HEVC (SDR, as many Android phones record)", "null", encode=HEVC_10BIT),
+    *(
+        Variant(
+            f"HDR {name}",
+            f"an HDR video ({name}, HEVC 10-bit BT.2020, as {phones}), SDR's white at HDR's reference white",
+            f"zscale=tin=bt709:min=bt709:pin=bt709:rin=tv:t={tag}:m=bt2020nc:p=bt2020:r=tv:npl={REFERENCE_WHITE_NITS},"
+            "format=yuv420p10le",
+            encode=(*HDR_ENCODE, "-color_trc", tag),
+        )
+        for name, tag, phones in (("HLG", "arib-std-b67", "iPhones record"), ("PQ", "smpte2084", "HDR10 phones do"))
+    ),
 )
 
 
@@ -132,8 +160,8 @@ def make_variant(video: Path, variant: Variant, out: Path) -> Path:
     import imageio_ffmpeg
 
     command = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error", "-i", str(video)]
-    command += ["-filter_complex", variant.filter, "-c:v", "libx264", "-crf", str(variant.crf), "-pix_fmt", "yuv420p"]
-    subprocess.run([*command, str(out)], check=True)
+    encode = variant.encode or ("-c:v", "libx264", "-crf", str(variant.crf), "-pix_fmt", "yuv420p")
+    subprocess.run([*command, "-filter_complex", variant.filter, *encode, str(out)], check=True)
     return out
 
 
@@ -146,6 +174,7 @@ class Captured:
         masks: source frame -> (H, W) bool mask in the source video's frame.
         uv: (n, C, 2) the canonical joints projected by the captured camera, in source pixels.
         joints: (n, C, 3) the canonical joints in camera coordinates (metres).
+        colours: (n, 3) the person's mean RGB (0-255) in each kept image, inside its mask.
         source_size: (H, W) of the source video.
         crop: the capture's crop.
     """
@@ -154,6 +183,7 @@ class Captured:
     masks: dict[int, np.ndarray]
     uv: np.ndarray
     joints: np.ndarray
+    colours: np.ndarray
     source_size: tuple[int, int]
     crop: Crop
 
@@ -166,12 +196,13 @@ class Captured:
         a, crop = subject.arrays, Crop.of(subject)
         size = (int(subject.meta["crop"]["source_height"]), int(subject.meta["crop"]["source_width"]))
         frames = np.asarray(a.frame_index, dtype=np.int64)
-        masks = {
-            int(f): crop.mask_to_source(read_mask(subject_dir / "masks" / image_name(i)) > 0.5, size)
-            for i, f in enumerate(frames)
-        }
+        crop_masks = [read_mask(subject_dir / "masks" / image_name(i)) > 0.5 for i in range(len(frames))]
+        masks = {int(f): crop.mask_to_source(mask, size) for f, mask in zip(frames, crop_masks)}
+        colours = np.stack(
+            [255 * read_rgb(subject_dir / "images" / image_name(i))[mask].mean(0) for i, mask in enumerate(crop_masks)]
+        )
         joints = camera_joints(load_body("anny"), a.shape, a.rotations, a.translation, a.world_to_camera)
-        return cls(frames, masks, crop.to_source(project(joints, a.K)), joints, size, crop)
+        return cls(frames, masks, crop.to_source(project(joints, a.K)), joints, colours, size, crop)
 
 
 def swapped_sides(names: list[str]) -> np.ndarray:
@@ -219,6 +250,7 @@ def compare(original: Captured, captured: Captured, variant: Variant, frames_rea
         "mask_iou": round(float(np.mean(ious)), 4),
         "joints_2d_pct": round(error_2d_percent(uv, original.uv[theirs], person_height_px(masks)), 3),
         "pa_mpjpe_mm": round(1000 * pa_mpjpe(joints, original.joints[theirs]), 2),
+        "colour_levels": round(float(np.abs(captured.colours[mine] - original.colours[theirs]).max(-1).mean()), 2),
         "middle": (int(mine[len(mine) // 2]), int(theirs[len(theirs) // 2])),
     }
 
@@ -314,7 +346,8 @@ def main() -> int:
             if middle is not None:
                 pictures.append((variant.name, panel(video, original, captured, variant, middle)))
             print(f"{variant.name}: done ({run.seconds:.0f} s)", flush=True)
-    columns = ["variant", "kept", "cut", "shared_frames", "mask_iou", "joints_2d_pct", "pa_mpjpe_mm", "check_problems"]
+    columns = ["variant", "kept", "cut", "shared_frames", "mask_iou", "joints_2d_pct", "pa_mpjpe_mm", "colour_levels"]
+    columns.append("check_problems")
     print_table(rows, [*columns, "seconds", "peak_gb"])
     figure = DOCS / "capture_real_variants.png"
     plot_panels(pictures, figure)

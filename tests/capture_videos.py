@@ -85,6 +85,44 @@ def with_rotation(source: Path, path: Path, degrees: int) -> Path:
     return path
 
 
+def write_encoded(path: Path, frames: np.ndarray, codec: str, pixel_format: str) -> Path:
+    """Write (T, H, W, 3) uint8 frames with ffmpeg's encoder ``codec`` in ``pixel_format`` (e.g. 10-bit
+    HEVC, ProRes 422), at its default quality."""
+    height, width = frames.shape[1:3]
+    command = [ffmpeg(), "-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{width}x{height}"]
+    command += ["-r", "10", "-i", "-", "-c:v", codec, "-pix_fmt", pixel_format]
+    command += ["-x265-params", "log-level=error"] if codec == "libx265" else []
+    subprocess.run([*command, str(path)], input=np.ascontiguousarray(frames).tobytes(), check=True)
+    return path
+
+
+def with_sample_aspect(source: Path, path: Path, aspect: tuple[int, int]) -> Path:
+    """Copy the H.264 ``source`` into ``path`` stating pixels ``aspect`` = (width, height) wide, without
+    re-encoding (what anamorphic footage states)."""
+    sar = f"h264_metadata=sample_aspect_ratio={aspect[0]}/{aspect[1]}"
+    command = [ffmpeg(), "-v", "error", "-y", "-i", str(source), "-c", "copy", "-bsf:v", sar, str(path)]
+    subprocess.run(command, check=True)
+    return path
+
+
+HDR_TAGS = {"HLG": "arib-std-b67", "PQ": "smpte2084"}
+"""The names users know of the HDR transfer functions -> ffmpeg's."""
+
+
+def write_flat_hdr_video(path: Path, signals: list[float], transfer: str, size: int = 64) -> Path:
+    """A 10-bit BT.2020 HEVC video (as an iPhone records) of flat grey frames, frame k at the HDR
+    ``transfer``'s signal ``signals[k]`` in [0, 1] (limited range: Y' = 64 + 876 signal), lossless."""
+    luma, chroma = size * size, (size // 2) ** 2
+    planes = [np.concatenate([np.full(luma, round(64 + 876 * v)), np.full(2 * chroma, 512)]) for v in signals]
+    tags = ["-color_primaries", "bt2020", "-color_trc", HDR_TAGS[transfer], "-colorspace", "bt2020nc"]
+    tags += ["-color_range", "tv"]
+    command = [ffmpeg(), "-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "yuv420p10le", "-s", f"{size}x{size}"]
+    command += ["-r", "10", *tags, "-i", "-", "-c:v", "libx265", "-x265-params", "log-level=error:lossless=1"]
+    command += ["-pix_fmt", "yuv420p10le", *tags, str(path)]
+    subprocess.run(command, input=np.concatenate(planes).astype("<u2").tobytes(), check=True)
+    return path
+
+
 def truncated_video(folder: Path) -> Path:
     """``folder/cut.mp4``: a 20-frame video with its index moved to the front (so it still opens, as a
     phone video copied incompletely does) and its last third cut off."""

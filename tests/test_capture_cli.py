@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 import pytest
-from capture_videos import real_frames, require_mediapipe, truncated_video, write_video
+from capture_videos import real_frames, require_mediapipe, truncated_video, write_flat_hdr_video, write_video
 
 from pghm.cli.main import main
 from pghm.errors import EXIT_USER_ERROR
@@ -195,3 +195,15 @@ def test_polish_reaches_the_config(tmp_path, capsys, monkeypatch):
     prior.write_bytes(b"")
     assert run_capture(tmp_path, capsys, video)[0] == 0 and seen[-1].polish is None
     assert run_capture(tmp_path, capsys, video, "--polish", str(prior))[0] == 0 and seen[-1].polish == str(prior)
+
+
+def test_hdr_video_without_tone_mapping_is_named_once(tmp_path, capsys, monkeypatch):
+    """An ffmpeg without zscale (imageio-ffmpeg's builds differ) cannot map HDR to SDR: one warning says so."""
+    mediapipe_required()
+    monkeypatch.setattr("pghm.capture.video.has_filter", lambda name: False)
+    path = write_flat_hdr_video(tmp_path / "iphone.mov", [0.5] * 10, "HLG")
+    code, lines = run_capture(tmp_path, capsys, path)
+    assert code == EXIT_USER_ERROR  # flat grey: no person
+    assert len(lines) == 2, lines
+    assert "iphone.mov: an HDR (HLG) video, and this ffmpeg has no zscale filter" in lines[0]
+    assert "iphone.mov: no person found" in lines[1]

@@ -2,13 +2,23 @@
 
 from __future__ import annotations
 
+import subprocess
+
 import numpy as np
 import pytest
-from capture_videos import truncated_video, with_rotation, write_video
+from capture_videos import (
+    ffmpeg,
+    truncated_video,
+    with_rotation,
+    with_sample_aspect,
+    write_encoded,
+    write_flat_hdr_video,
+    write_video,
+)
 from PIL import Image
 
 from pghm.capture.crop import Region
-from pghm.capture.video import open_source, scaled_size
+from pghm.capture.video import REFERENCE_WHITE_NITS, open_source, scaled_size
 from pghm.errors import PghmError
 
 COMPRESSION_TOLERANCE = 12
@@ -87,6 +97,21 @@ def test_crop_and_resize_match_the_frame(tmp_path):
     assert np.abs(interior(image).astype(int) - interior(expected)).max() <= COMPRESSION_TOLERANCE
 
 
+@pytest.mark.parametrize(
+    "codec, pixel_format, suffix",
+    [("libx264", "yuv420p", "mp4"), ("libx265", "yuv420p10le", "mp4"), ("prores_ks", "yuv422p10le", "mov")],
+)
+def test_crop_at_odd_offsets_keeps_the_colours(tmp_path, codec, pixel_format, suffix):
+    """Phones record 10-bit HEVC, iPhones ProRes 422 too: an exact crop at odd offsets must not
+    scramble a deep format's colours."""
+    pattern = quadrants(96, 128)
+    source = open_source(write_encoded(tmp_path / f"deep.{suffix}", np.stack([pattern] * 2), codec, pixel_format))
+    assert source.deep == (pixel_format != "yuv420p")
+    region = Region(33, 25, 62, 46)  # odd offsets, centred on the quadrants' meeting point (64, 48)
+    (_, image), _ = read(source, region)
+    assert np.abs(interior(image).astype(int) - interior(quadrants(46, 62))).max() <= COMPRESSION_TOLERANCE
+
+
 def test_never_enlarged():
     assert scaled_size(Region(0, 0, 200, 100), 512) == (100, 200)
     assert scaled_size(Region(0, 0, 1080, 1920), 512) == (512, 288)
@@ -106,6 +131,17 @@ def test_rotated_video_comes_out_upright(tmp_path):
         assert np.abs(interior(image).astype(int) - interior(upright)).max() <= COMPRESSION_TOLERANCE
 
 
+def test_non_square_pixels_come_out_at_display_width(tmp_path):
+    """Pixels stated twice as wide as tall: stored 64 wide, the picture is 128 wide on screen."""
+    shown = quadrants(96, 128)
+    stored = write_video(tmp_path / "stored.mp4", np.stack([shown[:, ::2]] * 2))
+    source = open_source(with_sample_aspect(stored, tmp_path / "anamorphic.mp4", (2, 1)))
+    assert (source.width, source.height) == (128, 96)
+    region = Region(32, 24, 64, 48)
+    (_, image), _ = read(source, region, (48, 64))
+    assert np.abs(interior(image).astype(int) - interior(quadrants(48, 64))).max() <= COMPRESSION_TOLERANCE
+
+
 def test_huge_frames_decode_scaled(tmp_path):
     pattern = quadrants(2160, 3840)
     source = open_source(write_video(tmp_path / "uhd.mp4", np.stack([pattern] * 2)))
@@ -113,6 +149,53 @@ def test_huge_frames_decode_scaled(tmp_path):
     frames = read(source, full, scaled_size(full, 512))
     assert [image.shape for _, image in frames] == [(288, 512, 3)] * 2
     assert np.abs(interior(frames[0][1]).astype(int) - interior(quadrants(288, 512))).max() <= COMPRESSION_TOLERANCE
+
+
+HLG_PEAK_NITS = 1000.0
+"""The display HLG's system gamma is defined for here (ITU-R BT.2100: gamma 1.2 at 1000 cd/m^2)."""
+SDR_DISPLAY_GAMMA = 2.4
+"""BT.1886's display gamma: SDR's code value for display light L (relative to white) is L^(1/2.4)."""
+QUANTISATION_TOLERANCE = 3
+"""Grey levels between an exact conversion and one through 10-bit limited-range video."""
+
+
+def hlg_display_nits(signal: float) -> float:
+    """Display light of an HLG grey (BT.2100): scene light E = signal^2 / 3 (signal <= 1/2), else
+    (exp((signal - c) / a) + b) / 12; display light 1000 E^1.2 cd/m^2."""
+    a, b, c = 0.17883277, 0.28466892, 0.55991073
+    scene = signal**2 / 3 if signal <= 0.5 else (np.exp((signal - c) / a) + b) / 12
+    return HLG_PEAK_NITS * scene**1.2
+
+
+def pq_signal(nits: float) -> float:
+    """The PQ signal of display light ``nits`` (SMPTE ST 2084's inverse EOTF)."""
+    m1, m2 = 2610 / 16384, 2523 / 4096 * 128
+    c1, c2, c3 = 3424 / 4096, 2413 / 4096 * 32, 2392 / 4096 * 32
+    y = (nits / 10000) ** m1
+    return ((c1 + c2 * y) / (1 + c3 * y)) ** m2
+
+
+@pytest.mark.parametrize(
+    "transfer, signals, nits",
+    [
+        ("HLG", [0.0, 0.25, 0.5, 0.75], [hlg_display_nits(v) for v in (0.0, 0.25, 0.5, 0.75)]),
+        ("PQ", [pq_signal(n) for n in (0.0, 20.0, 100.0, 203.0)], [0.0, 20.0, 100.0, 203.0]),
+    ],
+)
+def test_hdr_video_reads_as_sdr_with_reference_white_at_white(tmp_path, transfer, signals, nits):
+    """An iPhone records HLG; HDR's reference white (HLG 75 %, PQ 203 cd/m^2) must read as white, and
+    a grey of display light L as SDR's 255 (L / 203)^(1/2.4), not as its HDR code value."""
+    source = open_source(write_flat_hdr_video(tmp_path / f"{transfer}.mov", signals, transfer))
+    assert source.transfer == transfer
+    levels = [image.reshape(-1, 3) for _, image in read(source)]
+    expected = [255 * min(1.0, n / REFERENCE_WHITE_NITS) ** (1 / SDR_DISPLAY_GAMMA) for n in nits]
+    for level, value in zip(levels, expected, strict=True):
+        assert np.abs(level.astype(float) - value).max() <= QUANTISATION_TOLERANCE
+    assert expected[-1] == 255 and expected[1] > 60  # the test's own greys span the range
+
+
+def test_sdr_video_has_no_transfer(tmp_path):
+    assert open_source(write_video(tmp_path / "numbered.mp4", numbered_frames(2))).transfer is None
 
 
 def test_image_folder_in_name_order_with_exif_orientation(tmp_path):
@@ -148,6 +231,17 @@ def test_not_a_video(tmp_path):
     path.write_text("hello")
     with pytest.raises(PghmError, match="notes.mp4: not a readable video"):
         open_source(path)
+
+
+def test_song_with_cover_art_has_no_video_stream(tmp_path):
+    """ffmpeg lists an MP3's cover art as a video stream (an attached picture); it is not a video."""
+    Image.new("RGB", (64, 48), (200, 30, 30)).save(tmp_path / "cover.png")
+    song = tmp_path / "song.mp3"
+    command = [ffmpeg(), "-v", "error", "-f", "lavfi", "-i", "sine=duration=1", "-i", str(tmp_path / "cover.png")]
+    command += ["-map", "0", "-map", "1", "-c:v", "copy", "-disposition:v", "attached_pic", str(song)]
+    subprocess.run(command, check=True)
+    with pytest.raises(PghmError, match="song.mp3: has no video stream"):
+        open_source(song)
 
 
 def test_truncated_video(tmp_path):

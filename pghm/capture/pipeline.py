@@ -192,6 +192,8 @@ class FrontEnd:
         region: the crop, pixels of the full upright frame.
         source_fps: the video's frame rate (None: a folder of images, or not stated).
         cut: source frame numbers of the kept frames whose person runs out of the frame.
+        source_transfer: the video's HDR transfer function ("HLG", "PQ"), None for SDR; its frames
+            were mapped to SDR when ``pghm.capture.video`` could.
     """
 
     observations: Observations
@@ -202,6 +204,7 @@ class FrontEnd:
     region: Region
     source_fps: float | None = None
     cut: list[int] = field(default_factory=list)
+    source_transfer: str | None = None
 
 
 def observe_video(
@@ -213,6 +216,11 @@ def observe_video(
     warns once (``on_warning``) listing the frames dropped.
     """
     source = open_source(input)
+    if source.transfer and not source.tone_mapped:
+        on_warning(
+            f"{source.name}: an HDR ({source.transfer}) video, and this ffmpeg has no zscale filter to map it "
+            "to SDR: the avatar's colours come out flat (convert it to SDR first, or record in SDR)"
+        )
     with native_logs_silenced():
         track = _track(source, config)
         _require_frames(source.name, len(track.frame_index), track.frames_read, track.lost, config)
@@ -243,7 +251,9 @@ def observe_video(
             "the body there is guessed: film the whole body in view"
         )
     size = (source.width, source.height)
-    return FrontEnd(observations, source.name, size, track.frames_read, dropped, region, source.fps, cut_frames)
+    return FrontEnd(
+        observations, source.name, size, track.frames_read, dropped, region, source.fps, cut_frames, source.transfer
+    )
 
 
 def capture(
@@ -318,6 +328,7 @@ def _write(folder: Path, config: CaptureConfig, front: FrontEnd) -> None:
         "source": "pghm capture",
         "input": front.source_name,
         "fps": front.source_fps,
+        "hdr_transfer": front.source_transfer,
         "options": config.to_json(),
         "pghm_version": pghm.__version__,
         "mediapipe_version": _version("mediapipe"),

@@ -9,12 +9,19 @@ Orientation: ffmpeg applies a video's rotation (the display matrix phones write 
 portrait videos) before the filters, and images are turned by their EXIF orientation, so
 frames come out upright, and every size and pixel coordinate here is of the upright frame.
 
+Colour: frames are SDR BT.709. An HDR video (HLG or PQ, as phones record: an iPhone's HEVC is
+HLG) is mapped to it in ffmpeg's ``zscale`` with HDR's reference white at SDR's white
+(:data:`REFERENCE_WHITE_NITS`). Read as SDR instead, an HDR frame is dim and desaturated (the
+real video re-encoded in HLG: 14 grey levels a pixel from the original; in PQ: 26), and the avatar
+learns those colours (``benchmarks/bench_capture_real.py``'s ``HDR`` variants, docs/capture.md).
+
 Frame numbers are source frame numbers: with ``every`` N, the frames read are 0, N, 2N, ...
 of the video (or of the folder's images sorted by name).
 """
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 import subprocess
@@ -40,7 +47,25 @@ TRUNCATION_SIGNS = ("partial file", "Invalid data found when processing input")
 """ffmpeg log lines (at level ``error``) that mean the file ended or broke mid-stream; a
 clean decode of an intact file logs nothing at that level."""
 
+HDR_TRANSFERS = {"arib-std-b67": "HLG", "smpte2084": "PQ"}
+"""ffmpeg's names of the HDR transfer functions -> the names users know."""
+
+REFERENCE_WHITE_NITS = 203
+"""HDR's reference (diffuse) white in cd/m^2 (ITU-R BT.2408): HLG's 75 % signal, PQ's 58 %. It
+becomes SDR's white; brighter highlights clip."""
+
 _OUTPUT_SIZE = re.compile(r", (\d+)x(\d+)[ ,]")
+_SAMPLE_ASPECT = re.compile(r"\bSAR (\d+):(\d+)\b")
+_PIXEL_FORMAT = re.compile(r" Video: [^,]*, ([a-z0-9_]+)")
+_DEEP_FORMAT = re.compile(r"\d(le|be)$")
+"""ffmpeg's pixel formats of more than 8 bits a sample end in their bits and byte order
+(yuv420p10le, p010le, yuv422p12le)."""
+
+WORKING_FORMAT = "gbrp16le"
+"""What a deep video's frames are converted to before cropping: ffmpeg's exact crop at an odd
+offset of a subsampled deep format (10-bit HEVC and VP9, ProRes 422, 12-bit) scrambles its
+colours (94 grey levels off on the real video in 10-bit HEVC; 1.6-2.0 through RGB, against 1.2 for
+the 8-bit original), and zscale needs even sizes in subsampled formats. 16-bit RGB loses nothing."""
 _FPS = re.compile(r" (\d+(?:\.\d+)?) fps")
 _DURATION = re.compile(r"Duration: (\d+):(\d\d):(\d\d(?:\.\d+)?)")
 
@@ -62,6 +87,23 @@ def _ffmpeg() -> str:
     return imageio_ffmpeg.get_ffmpeg_exe()
 
 
+@functools.cache
+def has_filter(name: str) -> bool:
+    """Whether imageio-ffmpeg's ffmpeg has the video filter ``name`` (its builds differ by platform)."""
+    listing = subprocess.run([_ffmpeg(), "-hide_banner", "-filters"], capture_output=True, text=True, errors="replace")
+    return any(line.split()[1:2] == [name] for line in listing.stdout.splitlines())
+
+
+def to_sdr_filter() -> str:
+    """The ffmpeg filter mapping an RGB (:data:`WORKING_FORMAT`) HDR frame (HLG or PQ, BT.2020) to SDR
+    BT.709, reference white to white.
+
+    zscale linearises the input (HLG with its system gamma for a 1000 cd/m^2 display), converts the
+    primaries, and encodes BT.709 with ``npl`` = :data:`REFERENCE_WHITE_NITS` as SDR's 1.0.
+    """
+    return f"zscale=p=bt709:t=bt709:npl={REFERENCE_WHITE_NITS}"
+
+
 def _last_line(text: str) -> str:
     lines = [line.strip() for line in text.strip().splitlines() if line.strip()]
     return lines[-1] if lines else "no output"
@@ -69,7 +111,9 @@ def _last_line(text: str) -> str:
 
 @dataclass(frozen=True)
 class VideoFile:
-    """A video file. ``width`` x ``height`` is its upright frame size at full resolution.
+    """A video file. ``width`` x ``height`` is its upright frame size at full resolution, in square
+    pixels: a video whose pixels are not square (a sample aspect ratio, as camcorders' DV and
+    anamorphic footage state) is read stretched to its display width.
 
     Attributes:
         path: the file.
@@ -78,6 +122,9 @@ class VideoFile:
         frame_estimate: frames in the video from its duration and frame rate (for progress
             bars only; containers do not always say), or None.
         fps: its frame rate as the container states it, or None.
+        transfer: its HDR transfer function (a value of :data:`HDR_TRANSFERS`), or None for SDR.
+        sample_aspect: a stored pixel's width over its height (1 for square pixels).
+        deep: whether its samples have more than 8 bits (read through :data:`WORKING_FORMAT`).
     """
 
     path: Path
@@ -85,11 +132,18 @@ class VideoFile:
     height: int
     frame_estimate: int | None
     fps: float | None = None
+    transfer: str | None = None
+    sample_aspect: float = 1.0
+    deep: bool = False
 
     @classmethod
     def open(cls, path: Path) -> VideoFile:
-        """Probe ``path`` by decoding its first frame; :class:`PghmError` if it is not a readable video."""
-        command = [_ffmpeg(), "-hide_banner", "-nostdin", "-i", str(path), "-map", "0:v:0"]
+        """Probe ``path`` by decoding its first frame; :class:`PghmError` if it is not a readable video.
+
+        The frames are the first video stream that is not an attached picture (``0:V:0``): a song's
+        cover art is not a one-frame video.
+        """
+        command = [_ffmpeg(), "-hide_banner", "-nostdin", "-i", str(path), "-map", "0:V:0"]
         command += ["-frames:v", "1", "-f", "null", "-"]
         try:
             result = subprocess.run(command, capture_output=True, text=True, errors="replace", timeout=PROBE_SECONDS)
@@ -107,13 +161,28 @@ class VideoFile:
         if not sizes or sizes[0] is None:
             raise PghmError(f"{path.name}: not a readable video (ffmpeg reported no frame size)")
         width, height = int(sizes[0].group(1)), int(sizes[0].group(2))
+        stated_aspect = _SAMPLE_ASPECT.search(output)
+        aspect = 1.0
+        if stated_aspect and int(stated_aspect.group(1)) > 0 and int(stated_aspect.group(2)) > 0:
+            aspect = int(stated_aspect.group(1)) / int(stated_aspect.group(2))
+            width = max(1, round(width * aspect))
+        inputs = log.split("Output #0", 1)[0].splitlines()
+        stream = next((line for line in inputs if " Video: " in line and "(attached pic)" not in line), "")
+        transfer = next((name for key, name in HDR_TRANSFERS.items() if key in stream), None)
+        pixel_format = _PIXEL_FORMAT.search(stream)
+        deep = bool(pixel_format and _DEEP_FORMAT.search(pixel_format.group(1)))
         stated, duration = _FPS.search(log), _DURATION.search(log)
         fps = float(stated.group(1)) if stated else None
         estimate = None
         if fps and duration:
             hours, minutes, seconds = duration.groups()
             estimate = round((int(hours) * 3600 + int(minutes) * 60 + float(seconds)) * fps)
-        return cls(path, width, height, estimate, fps)
+        return cls(path, width, height, estimate, fps, transfer, aspect, deep)
+
+    @property
+    def tone_mapped(self) -> bool:
+        """Whether frames are mapped from HDR to SDR (an HDR video, and an ffmpeg with ``zscale``)."""
+        return self.transfer is not None and has_filter("zscale")
 
     @property
     def name(self) -> str:
@@ -124,8 +193,10 @@ class VideoFile:
     ) -> Iterator[tuple[int, np.ndarray]]:
         """Yield (source frame number, (H, W, 3) uint8 RGB) for frames 0, every, 2 every, ...
 
-        Each frame is the upright frame's ``region`` scaled to ``out_size`` = (H, W) by
-        ffmpeg (``crop`` with exact odd offsets, then ``scale`` with area averaging).
+        Each frame is the upright frame's ``region`` scaled to ``out_size`` = (H, W) by ffmpeg: a
+        deep video converted to :data:`WORKING_FORMAT`, non-square pixels stretched to square,
+        ``crop`` with exact odd offsets, ``scale`` with area averaging, then an HDR video's
+        :func:`to_sdr_filter` on the small frame.
         ``-fps_mode passthrough`` keeps one output frame per decoded frame, so the k-th frame
         read is source frame k * every even in variable-frame-rate videos.
         """
@@ -133,12 +204,18 @@ class VideoFile:
         filters = []
         if every > 1:
             filters.append(f"select='not(mod(n\\,{every}))'")
+        if self.deep or self.tone_mapped:
+            filters.append(f"format={WORKING_FORMAT}")
+        if self.sample_aspect != 1.0:
+            filters.append(f"scale={self.width}:{self.height},setsar=1")
         if (region.x, region.y, region.width, region.height) != (0, 0, self.width, self.height):
             filters.append(f"crop={region.width}:{region.height}:{region.x}:{region.y}:exact=1")
         if (height, width) != (region.height, region.width):
             filters.append(f"scale={width}:{height}:flags=area")
+        if self.tone_mapped:
+            filters.append(to_sdr_filter())
         command = [_ffmpeg(), "-hide_banner", "-nostdin", "-loglevel", "error", "-i", str(self.path)]
-        command += ["-map", "0:v:0", "-vf", ",".join(filters) or "null", "-fps_mode", "passthrough"]
+        command += ["-map", "0:V:0", "-vf", ",".join(filters) or "null", "-fps_mode", "passthrough"]
         if max_frames is not None:
             command += ["-frames:v", str(max_frames)]
         command += ["-f", "rawvideo", "-pix_fmt", "rgb24", "-"]
@@ -206,6 +283,15 @@ class ImageFolder:
     def fps(self) -> None:
         """Images have no frame rate."""
         return None
+
+    @property
+    def transfer(self) -> None:
+        """Images are read as SDR."""
+        return None
+
+    @property
+    def tone_mapped(self) -> bool:
+        return False
 
     def frames(
         self, region: Region, out_size: tuple[int, int], every: int = 1, max_frames: int | None = None
