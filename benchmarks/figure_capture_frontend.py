@@ -92,7 +92,7 @@ def main() -> None:
         wanted = {int(obs.frame_index[k]): k for k in picks}
         frames = {}
         source = open_source(args.video)
-        for index, image in source.frames(front.region, obs.image_size, config.every, config.max_frames):
+        for index, image in source.frames(front.region, obs.image_size, front.every, config.max_frames):
             if index in wanted:
                 frames[index] = image.copy()
         masks = {k: np.array(obs.masks[k]) for k in picks}

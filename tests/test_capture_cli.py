@@ -129,6 +129,7 @@ def test_capture_writes_a_subject_that_data_check_accepts(tmp_path):
     meta = json.loads((out / "meta.json").read_text())
     assert meta["input"] == "clip.mp4" and str(tmp_path) not in (out / "meta.json").read_text()
     assert meta["fps"] == 10.0  # write_video's rate, read from the container
+    assert meta["options"]["every"] == 1 and meta["hdr_transfer"] is None
     counts = {"frames_read": 10, "person_found": 9, "dropped": 1, "dropped_frames": [4], "cut_frames": []}
     assert meta["counts"] == counts
     # The focal length given in full-frame pixels, carried through the crop and the resize.

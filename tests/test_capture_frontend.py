@@ -271,6 +271,36 @@ def test_frames_without_the_person_are_dropped_with_one_warning(subject_folder):
     assert len(list((subject_folder / "subject" / "images").glob("*.png"))) == 8
 
 
+def test_a_long_video_is_thinned_to_the_target_evenly_with_one_warning(subject_folder):
+    """24 frames and a target of 8: one in three is read, from the first, and the stride is said once
+    and recorded; a given --every is not overridden."""
+    require_mediapipe()
+    video = write_video(subject_folder / "long.mp4", real_frames(24))
+    front, warnings = observe(video, subject_folder, target_frames=8)
+    assert front.every == 3 and front.frames_read == 8
+    assert front.observations.frame_index.tolist() == list(range(0, 24, 3))
+    assert len(warnings) == 1 and "long.mp4: about 24 frames; reading one in 3, about 8" in warnings[0]
+    (subject_folder / "given" / "subject").mkdir(parents=True)
+    front, warnings = observe(video, subject_folder / "given", target_frames=8, every=2)
+    assert front.every == 2 and front.frames_read == 12 and warnings == []
+
+
+@pytest.mark.parametrize(
+    "options, frames, stride",
+    [
+        ({}, 1800, 6),  # a minute at 30 frames/s: 300 of them
+        ({}, 300, 1),
+        ({}, 301, 2),
+        ({}, None, 1),  # the container does not say how long it is
+        ({"every": 4}, 1800, 4),
+        ({"max_frames": 100}, 1800, 1),  # the frames read are bounded already
+        ({"target_frames": 0}, 1800, 1),
+    ],
+)
+def test_stride(options, frames, stride):
+    assert CaptureConfig(**options).stride(frames) == stride
+
+
 def test_frame_edges_are_those_the_region_reaches():
     assert frame_edges(Region(0, 0, 100, 50), 100, 50) == ["left", "top", "right", "bottom"]
     assert frame_edges(Region(10, 0, 90, 40), 100, 50) == ["top", "right"]

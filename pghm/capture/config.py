@@ -37,6 +37,13 @@ DEFAULT_SIZE = 512
 DEFAULT_TEST_EVERY = 8
 """Every this-many-th kept frame goes to the test split."""
 
+DEFAULT_TARGET_FRAMES = 300
+"""About how many frames a longer video is thinned to when ``--every`` is not given (nerfstudio's
+``ns-process-data video`` targets 300 too). ``pghm fit`` takes a fixed number of steps, so frames
+beyond a few hundred add time, not detail: the capture's (about 0.25 s a frame here) and the fit's
+settling of its pose track (about 7 s of a core a training frame, docs/training.md), which for a
+minute of 30 frames/s video would be three hours."""
+
 DEFAULT_CROP_MARGIN = 0.1
 """Margin added on each side of the region the person occupies, as a fraction of that
 region's longest side (room for a hand the segmentation clipped)."""
@@ -46,11 +53,15 @@ region's longest side (room for a hand the segmentation clipped)."""
 class CaptureConfig:
     """What ``pghm capture`` does with a video. Defaults: a phone video, camera unknown."""
 
-    every: int = 1
-    """Keep every this-many-th frame of the video (source frame numbers 0, N, 2N, ...)."""
+    every: int | None = None
+    """Keep every this-many-th frame of the video (source frame numbers 0, N, 2N, ...); None: the
+    stride :meth:`stride` chooses (1, or about ``target_frames`` frames of a longer video)."""
 
     max_frames: int | None = None
     """Stop after this many kept frames (None: the whole video)."""
+
+    target_frames: int = DEFAULT_TARGET_FRAMES
+    """See :data:`DEFAULT_TARGET_FRAMES`; 0: every frame of any video when ``every`` is None."""
 
     size: int = DEFAULT_SIZE
     """Longest side of the subject images after the crop, pixels. Frames are never
@@ -98,8 +109,10 @@ class CaptureConfig:
 
     def validate(self) -> CaptureConfig:
         """Raise :class:`PghmError` naming the first option out of range; return self."""
-        if self.every < 1:
+        if self.every is not None and self.every < 1:
             raise PghmError(f"--every must be >= 1, got {self.every}")
+        if self.target_frames < 0:
+            raise PghmError(f"--target-frames must be >= 0, got {self.target_frames}")
         if self.max_frames is not None and self.max_frames < 1:
             raise PghmError(f"--max-frames must be >= 1, got {self.max_frames}")
         if self.size < MIN_SIZE:
@@ -119,6 +132,19 @@ class CaptureConfig:
         if self.polish is not None and not Path(self.polish).is_file():
             raise PghmError(f"--polish {self.polish}: no such prior file")
         return self
+
+    def stride(self, frame_count: int | None) -> int:
+        """The stride frames are read at, for a video of about ``frame_count`` frames (None: unknown).
+
+        ``every`` when given; else ceil(F / ``target_frames``) for F > ``target_frames`` frames, so
+        about that many are kept, spread evenly over the video; 1 when ``max_frames`` already
+        bounds the frames read, when ``target_frames`` is 0, or when the length is unknown.
+        """
+        if self.every is not None:
+            return self.every
+        if self.max_frames is not None or not self.target_frames or not frame_count:
+            return 1
+        return max(1, math.ceil(frame_count / self.target_frames))
 
     def source_intrinsics(self, width: int, height: int) -> np.ndarray | None:
         """(3, 3) K in pixels of the full upright video frame (W x H), or None when unknown.

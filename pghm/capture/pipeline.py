@@ -194,6 +194,7 @@ class FrontEnd:
         cut: source frame numbers of the kept frames whose person runs out of the frame.
         source_transfer: the video's HDR transfer function ("HLG", "PQ"), None for SDR; its frames
             were mapped to SDR when ``pghm.capture.video`` could.
+        every: the stride the frames were read at.
     """
 
     observations: Observations
@@ -205,6 +206,7 @@ class FrontEnd:
     source_fps: float | None = None
     cut: list[int] = field(default_factory=list)
     source_transfer: str | None = None
+    every: int = 1
 
 
 def observe_video(
@@ -212,10 +214,18 @@ def observe_video(
 ) -> FrontEnd:
     """Passes 1 and 2: find and follow the person, crop, and write the subject's images and masks into ``folder``.
 
-    Raises :class:`PghmError` for an unreadable input or too few frames with the person;
-    warns once (``on_warning``) listing the frames dropped.
+    Frames are read at ``config.stride`` of the video's length. Raises :class:`PghmError` for an
+    unreadable input or too few frames with the person; warns once (``on_warning``) listing the
+    frames dropped, and once when a long video is thinned.
     """
     source = open_source(input)
+    every = config.stride(source.frame_estimate)
+    if config.every is None and every > 1:
+        on_warning(
+            f"{source.name}: about {source.frame_estimate} frames; reading one in {every}, about "
+            f"{-(-source.frame_estimate // every)} (--every 1 reads them all, --target-frames sets how many)"
+        )
+    config = replace(config, every=every)
     if source.transfer and not source.tone_mapped:
         on_warning(
             f"{source.name}: an HDR ({source.transfer}) video, and this ffmpeg has no zscale filter to map it "
@@ -252,7 +262,16 @@ def observe_video(
         )
     size = (source.width, source.height)
     return FrontEnd(
-        observations, source.name, size, track.frames_read, dropped, region, source.fps, cut_frames, source.transfer
+        observations,
+        source.name,
+        size,
+        track.frames_read,
+        dropped,
+        region,
+        source.fps,
+        cut_frames,
+        source.transfer,
+        config.every,
     )
 
 
@@ -329,7 +348,7 @@ def _write(folder: Path, config: CaptureConfig, front: FrontEnd) -> None:
         "input": front.source_name,
         "fps": front.source_fps,
         "hdr_transfer": front.source_transfer,
-        "options": config.to_json(),
+        "options": {**config.to_json(), "every": front.every},
         "pghm_version": pghm.__version__,
         "mediapipe_version": _version("mediapipe"),
         "counts": {

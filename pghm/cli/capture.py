@@ -1,6 +1,6 @@
 """``pghm capture``: a video of a person becomes a subject folder (docs/capture.md).
 
-    pghm capture INPUT --out SUBJECT [--every N] [--max-frames N] [--size PX]
+    pghm capture INPUT --out SUBJECT [--every N] [--max-frames N] [--target-frames N] [--size PX]
                  [--fov DEG | --focal PX] [--test-every N] [--no-mirror-pass] [--no-pose-prior]
                  [--polish PRIOR] [--quiet]
 
@@ -14,6 +14,7 @@ import argparse
 
 from pghm.capture.config import (
     DEFAULT_SIZE,
+    DEFAULT_TARGET_FRAMES,
     DEFAULT_TEST_EVERY,
     FOV_RANGE_DEG,
     MAX_FOCAL_PX,
@@ -31,6 +32,7 @@ def _capture(args: argparse.Namespace) -> int:
     config = CaptureConfig(
         every=args.every,
         max_frames=args.max_frames,
+        target_frames=args.target_frames,
         size=args.size,
         fov_deg=args.fov,
         focal_px=args.focal,
@@ -56,7 +58,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("input", help="a video file (mp4, mov, webm, avi, ...) or a folder of images")
     parser.add_argument("--out", required=True, help="the new subject folder to write")
-    parser.add_argument("--every", type=Integer(1, MAX_INDEX), default=1, help="keep every N-th frame (default 1: all)")
+    parser.add_argument(
+        "--every",
+        type=Integer(1, MAX_INDEX),
+        default=None,
+        help="keep every N-th frame (default: all, or about --target-frames of a longer video)",
+    )
+    parser.add_argument(
+        "--target-frames",
+        type=Integer(0, MAX_INDEX),
+        default=DEFAULT_TARGET_FRAMES,
+        help=f"without --every or --max-frames, thin a longer video to about this many frames, evenly "
+        f"(default {DEFAULT_TARGET_FRAMES}; 0: all)",
+    )
     parser.add_argument(
         "--max-frames", type=Integer(1, MAX_INDEX), default=None, help="stop after this many kept frames"
     )
