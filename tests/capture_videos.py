@@ -85,13 +85,15 @@ def with_rotation(source: Path, path: Path, degrees: int) -> Path:
     return path
 
 
-def write_encoded(path: Path, frames: np.ndarray, codec: str, pixel_format: str) -> Path:
+def write_encoded(path: Path, frames: np.ndarray, codec: str, pixel_format: str, interlaced: bool = False) -> Path:
     """Write (T, H, W, 3) uint8 frames with ffmpeg's encoder ``codec`` in ``pixel_format`` (e.g. 10-bit
-    HEVC, ProRes 422), at its default quality."""
+    HEVC, ProRes 422), at its default quality; ``interlaced``: as x264's top-field-first interlaced
+    frames (even rows the first field)."""
     height, width = frames.shape[1:3]
     command = [ffmpeg(), "-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{width}x{height}"]
     command += ["-r", "10", "-i", "-", "-c:v", codec, "-pix_fmt", pixel_format]
     command += ["-x265-params", "log-level=error"] if codec == "libx265" else []
+    command += ["-flags", "+ildct+ilme", "-x264-params", "tff=1", "-crf", "10"] if interlaced else []
     subprocess.run([*command, str(path)], input=np.ascontiguousarray(frames).tobytes(), check=True)
     return path
 

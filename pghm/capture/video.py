@@ -61,6 +61,14 @@ _DEEP_FORMAT = re.compile(r"\d(le|be)$")
 """ffmpeg's pixel formats of more than 8 bits a sample end in their bits and byte order
 (yuv420p10le, p010le, yuv422p12le)."""
 
+INTERLACED_ORDERS = ("top first", "bottom first", "top coded first", "bottom coded first")
+"""ffmpeg's field orders of an interlaced stream (camcorders' 1080i and DV): each frame holds two
+fields a field period apart, which a moving limb shows as combing."""
+
+DEINTERLACE_FILTER = "bwdif=mode=send_frame:deint=interlaced"
+"""One progressive frame per interlaced frame (so frame numbers stay the source's), from its first
+field and its neighbours' (Bob Weaver); frames not flagged interlaced pass untouched."""
+
 WORKING_FORMAT = "gbrp16le"
 """What a deep video's frames are converted to before cropping: ffmpeg's exact crop at an odd
 offset of a subsampled deep format (10-bit HEVC and VP9, ProRes 422, 12-bit) scrambles its
@@ -125,6 +133,7 @@ class VideoFile:
         transfer: its HDR transfer function (a value of :data:`HDR_TRANSFERS`), or None for SDR.
         sample_aspect: a stored pixel's width over its height (1 for square pixels).
         deep: whether its samples have more than 8 bits (read through :data:`WORKING_FORMAT`).
+        interlaced: whether its frames are interlaced (read through :data:`DEINTERLACE_FILTER`).
     """
 
     path: Path
@@ -135,6 +144,7 @@ class VideoFile:
     transfer: str | None = None
     sample_aspect: float = 1.0
     deep: bool = False
+    interlaced: bool = False
 
     @classmethod
     def open(cls, path: Path) -> VideoFile:
@@ -169,6 +179,7 @@ class VideoFile:
         inputs = log.split("Output #0", 1)[0].splitlines()
         stream = next((line for line in inputs if " Video: " in line and "(attached pic)" not in line), "")
         transfer = next((name for key, name in HDR_TRANSFERS.items() if key in stream), None)
+        interlaced = any(order in stream for order in INTERLACED_ORDERS)
         pixel_format = _PIXEL_FORMAT.search(stream)
         deep = bool(pixel_format and _DEEP_FORMAT.search(pixel_format.group(1)))
         stated, duration = _FPS.search(log), _DURATION.search(log)
@@ -177,7 +188,7 @@ class VideoFile:
         if fps and duration:
             hours, minutes, seconds = duration.groups()
             estimate = round((int(hours) * 3600 + int(minutes) * 60 + float(seconds)) * fps)
-        return cls(path, width, height, estimate, fps, transfer, aspect, deep)
+        return cls(path, width, height, estimate, fps, transfer, aspect, deep, interlaced)
 
     @property
     def tone_mapped(self) -> bool:
@@ -193,15 +204,16 @@ class VideoFile:
     ) -> Iterator[tuple[int, np.ndarray]]:
         """Yield (source frame number, (H, W, 3) uint8 RGB) for frames 0, every, 2 every, ...
 
-        Each frame is the upright frame's ``region`` scaled to ``out_size`` = (H, W) by ffmpeg: a
-        deep video converted to :data:`WORKING_FORMAT`, non-square pixels stretched to square,
-        ``crop`` with exact odd offsets, ``scale`` with area averaging, then an HDR video's
-        :func:`to_sdr_filter` on the small frame.
+        Each frame is the upright frame's ``region`` scaled to ``out_size`` = (H, W) by ffmpeg: an
+        interlaced video deinterlaced (before the stride, which would take away the neighbouring
+        frames it uses), a deep video converted to :data:`WORKING_FORMAT`, non-square pixels
+        stretched to square, ``crop`` with exact odd offsets, ``scale`` with area averaging, then an
+        HDR video's :func:`to_sdr_filter` on the small frame.
         ``-fps_mode passthrough`` keeps one output frame per decoded frame, so the k-th frame
         read is source frame k * every even in variable-frame-rate videos.
         """
         height, width = out_size
-        filters = []
+        filters = [DEINTERLACE_FILTER] if self.interlaced else []
         if every > 1:
             filters.append(f"select='not(mod(n\\,{every}))'")
         if self.deep or self.tone_mapped:
@@ -339,7 +351,10 @@ def _read_region(file: Path, size: tuple[int, int], region: Region, out_size: tu
                     f"the folder's first image is {size[0]}x{size[1]}; every frame must have one size"
                 )
             image.draft("RGB", (max(1, int(image.width * scale)), max(1, int(image.height * scale))))
-            image = ImageOps.exif_transpose(image).convert("RGB")
+            image = ImageOps.exif_transpose(image)
+            if image.mode.startswith("I;16"):  # 16-bit grey: convert("RGB") would clip it to white
+                image = Image.fromarray((np.asarray(image, dtype=np.uint16) >> 8).astype(np.uint8))
+            image = image.convert("RGB")
     except PghmError:
         raise
     except IMAGE_READ_ERRORS as error:
