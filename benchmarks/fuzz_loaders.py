@@ -1,4 +1,5 @@
-"""Fuzz the loaders of files users get from strangers: BVH clips, motion ``.npz`` and ``avatar.pt``.
+"""Fuzz the loaders of files users get from strangers: BVH clips, motion ``.npz``, ``avatar.pt``,
+subject folders and the videos ``pghm capture`` reads.
 
     .venv/bin/python benchmarks/fuzz_loaders.py [--budget SECONDS] [--seed S] [--targets bvh,avatar,...]
                                                 [--json OUT.json] [--crashes DIR]
@@ -29,6 +30,7 @@ import json
 import logging
 import math
 import random
+import subprocess
 import sys
 import tempfile
 import time
@@ -469,6 +471,7 @@ class Targets:
             self.motion_arrays = {key: data[key] for key in data.files}
         self.subject_dir = workdir / "subject"
         write_small_subject(self.subject_dir, self.body)
+        self.video_bytes = [seed_video(workdir / f"seed{k}{suffix}", options) for k, (suffix, options) in VIDEO_SEEDS]
 
     def bvh(self, rng: random.Random) -> bytes:
         """parse_bvh on mutated text (or bytes) of a seed clip."""
@@ -573,9 +576,58 @@ class Targets:
         TrainingData(folder)
         return data
 
+    def video(self, rng: random.Random) -> bytes:
+        """A damaged video file (plain, 10-bit HDR, interlaced, non-square pixels) probed and read
+        through every filter ``pghm capture`` uses: a crop at odd offsets, scaled down."""
+        from pghm.capture.crop import Region
+        from pghm.capture.video import open_source, scaled_size
 
-TARGETS = ("bvh", "bvh_import", "avatar", "motion_npz", "subject")
-SUFFIX = {"bvh": ".bvh", "bvh_import": ".bvh", "avatar": ".pt", "motion_npz": ".npz", "subject": ".case"}
+        data = mutate_bytes(rng.choice(self.video_bytes), rng)
+        self._last = data
+        path = self.workdir / "case.mov"
+        path.write_bytes(data)
+        source = open_source(path)
+        region = Region(1, 1, max(1, source.width - 2), max(1, source.height - 3))
+        for _, image in source.frames(region, scaled_size(region, VIDEO_SIZE // 2), rng.choice((1, 2))):
+            assert image.dtype == np.uint8 and image.ndim == 3
+        return data
+
+
+VIDEO_SIZE = 64
+"""Longest side of the seed videos, pixels: small, so a case costs two ffmpeg runs of a few ms."""
+VIDEO_SEEDS = tuple(
+    enumerate(
+        (
+            (".mp4", ("-c:v", "libx264", "-pix_fmt", "yuv420p")),
+            (".mov", ("-c:v", "libx265", "-pix_fmt", "yuv420p10le", "-color_trc", "arib-std-b67",
+                      "-color_primaries", "bt2020", "-colorspace", "bt2020nc", "-x265-params", "log-level=error")),
+            (".mp4", ("-c:v", "libx264", "-pix_fmt", "yuv420p", "-flags", "+ildct+ilme", "-x264-params", "tff=1")),
+            (".mkv", ("-c:v", "libx264", "-pix_fmt", "yuv420p", "-vf", "setsar=2")),
+        )
+    )
+)  # fmt: skip
+"""What phones and cameras record, each one seed: 8-bit H.264, 10-bit HLG HEVC, interlaced, anamorphic."""
+
+
+def seed_video(path: Path, options: tuple[str, ...]) -> bytes:
+    """A short moving test pattern encoded with ffmpeg ``options``; its bytes."""
+    import imageio_ffmpeg
+
+    source = f"testsrc2=size={VIDEO_SIZE}x{VIDEO_SIZE * 3 // 4}:rate=10:duration=0.6"
+    command = [imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-y", "-f", "lavfi", "-i", source, *options, str(path)]
+    subprocess.run(command, check=True)
+    return path.read_bytes()
+
+
+TARGETS = ("bvh", "bvh_import", "avatar", "motion_npz", "subject", "video")
+SUFFIX = {
+    "bvh": ".bvh",
+    "bvh_import": ".bvh",
+    "avatar": ".pt",
+    "motion_npz": ".npz",
+    "subject": ".case",
+    "video": ".mov",
+}
 
 
 def run_target(targets: Targets, name: str, seconds: float, seed: int, crashes: Path | None) -> TargetStats:

@@ -55,6 +55,8 @@ REFERENCE_WHITE_NITS = 203
 becomes SDR's white; brighter highlights clip."""
 
 _OUTPUT_SIZE = re.compile(r", (\d+)x(\d+)[ ,]")
+_FPS = re.compile(r" (\d+(?:\.\d+)?) fps")
+_DURATION = re.compile(r"Duration: (\d+):(\d\d):(\d\d(?:\.\d+)?)")
 _SAMPLE_ASPECT = re.compile(r"\bSAR (\d+):(\d+)\b")
 _PIXEL_FORMAT = re.compile(r" Video: [^,]*, ([a-z0-9_]+)")
 _DEEP_FORMAT = re.compile(r"\d(le|be)$")
@@ -74,8 +76,6 @@ WORKING_FORMAT = "gbrp16le"
 offset of a subsampled deep format (10-bit HEVC and VP9, ProRes 422, 12-bit) scrambles its
 colours (94 grey levels off on the real video in 10-bit HEVC; 1.6-2.0 through RGB, against 1.2 for
 the 8-bit original), and zscale needs even sizes in subsampled formats. 16-bit RGB loses nothing."""
-_FPS = re.compile(r" (\d+(?:\.\d+)?) fps")
-_DURATION = re.compile(r"Duration: (\d+):(\d\d):(\d\d(?:\.\d+)?)")
 
 
 def scaled_size(region: Region, longest: int) -> tuple[int, int]:
