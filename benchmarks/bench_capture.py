@@ -510,7 +510,7 @@ def capture_case(
     truth = render_walk_video(config, seed, video, background(kind, seed, *SIZE), progress=True)
     subject_dir = work / name
     shutil.rmtree(subject_dir, ignore_errors=True)  # a --keep folder's subjects are made again; its fits are reused
-    run = run_capture(video, subject_dir, work / f"{name}.log")
+    run = run_capture(video, subject_dir, work / f"{name}.log", ("--every", "1"))  # the truth has every frame
     comparison = measure(truth, subject_dir)
     row = {
         "motion": motion,
@@ -539,7 +539,7 @@ def capture_case(
         if polish:
             polished = work / f"{name}_polished"
             if not polished.exists():  # written whole or not at all: a --keep folder's is reused
-                run_capture(video, polished, work / f"{name}_polished.log", ("--polish", str(PRIOR)))
+                run_capture(video, polished, work / f"{name}_polished.log", ("--every", "1", "--polish", str(PRIOR)))
             row["polish"] = json.loads((polished / "meta.json").read_text())["polish"]
             joints = measure(truth, polished).metrics  # b and c of the stored poses the polish corrected
             row.update({f"polished_{key}": joints[key] for key in JOINT_KEYS})
@@ -564,7 +564,7 @@ def stage_seconds(video: Path, folder: Path) -> dict:
 
     folder.mkdir(parents=True, exist_ok=True)  # a --keep folder of an earlier run is reused
     started = time.perf_counter()
-    front = observe_video(video, folder, CaptureConfig(progress=False))
+    front = observe_video(video, folder, CaptureConfig(progress=False, every=1))  # e: every frame
     front_s = time.perf_counter() - started
     fit_body(front.observations)
     return {"front_end_s": round(front_s, 1), "body_fit_s": round(time.perf_counter() - started - front_s, 1)}

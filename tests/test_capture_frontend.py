@@ -288,13 +288,15 @@ def test_a_long_video_is_thinned_to_the_target_evenly_with_one_warning(subject_f
 @pytest.mark.parametrize(
     "options, frames, stride",
     [
-        ({}, 1800, 6),  # a minute at 30 frames/s: 300 of them
-        ({}, 300, 1),
-        ({}, 301, 2),
+        ({}, 1800, 18),  # a minute at 30 frames/s: 100 of them
+        ({}, 300, 3),
+        ({}, 199, 1),  # 199 kept: within twice the target
+        ({}, 200, 2),
         ({}, None, 1),  # the container does not say how long it is
         ({"every": 4}, 1800, 4),
         ({"max_frames": 100}, 1800, 1),  # the frames read are bounded already
         ({"target_frames": 0}, 1800, 1),
+        ({"target_frames": 300}, 1800, 6),
     ],
 )
 def test_stride(options, frames, stride):

@@ -37,12 +37,15 @@ DEFAULT_SIZE = 512
 DEFAULT_TEST_EVERY = 8
 """Every this-many-th kept frame goes to the test split."""
 
-DEFAULT_TARGET_FRAMES = 300
-"""About how many frames a longer video is thinned to when ``--every`` is not given (nerfstudio's
-``ns-process-data video`` targets 300 too). ``pghm fit`` takes a fixed number of steps, so frames
-beyond a few hundred add time, not detail: the capture's (about 0.25 s a frame here) and the fit's
-settling of its pose track (about 7 s of a core a training frame, docs/training.md), which for a
-minute of 30 frames/s video would be three hours."""
+DEFAULT_TARGET_FRAMES = 100
+"""Frames a longer video is thinned to when ``--every`` is not given: it is read one frame in
+floor(F / 100), keeping 100 to 199 (the rule nerfstudio's ``ns-process-data video`` uses, with its
+own target of 300). ``pghm fit`` takes a fixed number of steps, so frames beyond about a hundred
+add time, not detail: the capture's (about 0.2 s a frame here), and the fit's settling of its pose
+track (30 steps a training frame, docs/training.md). On 2 cores, mostly idle, the default fit of a
+300-frame capture took 8 minutes for its two stages and would have taken 35 more to settle; a
+minute of 30 frames/s video, three and a half hours. 100 frames is also what ``pghm fit`` was
+measured on end to end (bench_capture's d)."""
 
 DEFAULT_CROP_MARGIN = 0.1
 """Margin added on each side of the region the person occupies, as a fraction of that
@@ -136,15 +139,15 @@ class CaptureConfig:
     def stride(self, frame_count: int | None) -> int:
         """The stride frames are read at, for a video of about ``frame_count`` frames (None: unknown).
 
-        ``every`` when given; else ceil(F / ``target_frames``) for F > ``target_frames`` frames, so
-        about that many are kept, spread evenly over the video; 1 when ``max_frames`` already
-        bounds the frames read, when ``target_frames`` is 0, or when the length is unknown.
+        ``every`` when given; else floor(F / ``target_frames``), which keeps ``target_frames`` to
+        twice that, spread evenly over the video; 1 when ``max_frames`` already bounds the frames
+        read, when ``target_frames`` is 0, or when the length is unknown.
         """
         if self.every is not None:
             return self.every
         if self.max_frames is not None or not self.target_frames or not frame_count:
             return 1
-        return max(1, math.ceil(frame_count / self.target_frames))
+        return max(1, frame_count // self.target_frames)
 
     def source_intrinsics(self, width: int, height: int) -> np.ndarray | None:
         """(3, 3) K in pixels of the full upright video frame (W x H), or None when unknown.

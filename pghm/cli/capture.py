@@ -68,8 +68,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--target-frames",
         type=Integer(0, MAX_INDEX),
         default=DEFAULT_TARGET_FRAMES,
-        help=f"without --every or --max-frames, thin a longer video to about this many frames, evenly "
-        f"(default {DEFAULT_TARGET_FRAMES}; 0: all)",
+        help=f"without --every or --max-frames, read a longer video one frame in floor(frames / N), "
+        f"keeping N to 2N evenly (default {DEFAULT_TARGET_FRAMES}; 0: all)",
     )
     parser.add_argument(
         "--max-frames", type=Integer(1, MAX_INDEX), default=None, help="stop after this many kept frames"
