@@ -128,8 +128,8 @@ def format_report(rows: list[dict], fuzz: dict | None, suite_status: int, second
         lines += ["The fuzzer did not produce results.", ""]
         return "\n".join(lines)
     lines += [
-        "`benchmarks/fuzz_loaders.py` mutates valid BVH clips, motion files, avatar files and subject "
-        "folders (structure-aware edits and raw byte damage) and runs each loader on them; any exception "
+        "`benchmarks/fuzz_loaders.py` mutates valid BVH clips, motion files, avatar files, subject "
+        "folders and videos (structure-aware edits and raw byte damage) and runs each loader on them; any exception "
         "other than `PghmError` is a finding. Seed "
         f"{fuzz['seed']}; the counts depend on the machine's speed.",
         "",
