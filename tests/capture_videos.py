@@ -98,6 +98,21 @@ def write_encoded(path: Path, frames: np.ndarray, codec: str, pixel_format: str,
     return path
 
 
+def write_hlg_video(path: Path, frames: np.ndarray) -> Path:
+    """Write (T, H, W, 3) uint8 SDR BT.709 frames as an iPhone stores video: 10-bit HEVC in BT.2020 with
+    the HLG transfer (SDR's white at HDR's reference white, ITU-R BT.2408)."""
+    from pghm.capture.video import REFERENCE_WHITE_NITS
+
+    height, width = frames.shape[1:3]
+    to_hlg = "zscale=tin=bt709:min=bt709:pin=bt709:rin=full:t=arib-std-b67:m=bt2020nc:p=bt2020:r=tv"
+    tags = ["-color_primaries", "bt2020", "-color_trc", "arib-std-b67", "-colorspace", "bt2020nc"]
+    command = [ffmpeg(), "-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{width}x{height}"]
+    command += ["-r", "10", "-i", "-", "-vf", f"{to_hlg}:npl={REFERENCE_WHITE_NITS},format=yuv420p10le"]
+    command += ["-c:v", "libx265", "-x265-params", "log-level=error", "-pix_fmt", "yuv420p10le", *tags, str(path)]
+    subprocess.run(command, input=np.ascontiguousarray(frames).tobytes(), check=True)
+    return path
+
+
 def with_sample_aspect(source: Path, path: Path, aspect: tuple[int, int]) -> Path:
     """Copy the H.264 ``source`` into ``path`` stating pixels ``aspect`` = (width, height) wide, without
     re-encoding (what anamorphic footage states)."""

@@ -13,6 +13,7 @@ from capture_videos import (
     with_sample_aspect,
     write_encoded,
     write_flat_hdr_video,
+    write_hlg_video,
     write_video,
 )
 from PIL import Image
@@ -151,6 +152,12 @@ def test_huge_frames_decode_scaled(tmp_path):
     assert np.abs(interior(frames[0][1]).astype(int) - interior(quadrants(288, 512))).max() <= COMPRESSION_TOLERANCE
 
 
+HDR_ROUND_TRIP_TOLERANCE = 5.0
+"""Mean grey levels the quadrants may move through BT.2020 HLG at 10 bits and back (3.7 measured):
+a saturated primary's dark channels move by up to 13 inside a quadrant (the gamut conversion
+subtracts nearly equal terms) and more at its chroma-subsampled edges. Read as SDR they move by 47,
+turned the wrong way by 102."""
+
 HLG_PEAK_NITS = 1000.0
 """The display HLG's system gamma is defined for here (ITU-R BT.2100: gamma 1.2 at 1000 cd/m^2)."""
 SDR_DISPLAY_GAMMA = 2.4
@@ -192,6 +199,17 @@ def test_hdr_video_reads_as_sdr_with_reference_white_at_white(tmp_path, transfer
     for level, value in zip(levels, expected, strict=True):
         assert np.abs(level.astype(float) - value).max() <= QUANTISATION_TOLERANCE
     assert expected[-1] == 255 and expected[1] > 60  # the test's own greys span the range
+
+
+def test_iphone_video_portrait_hdr_reads_upright_in_sdr(tmp_path):
+    """What an iPhone records: landscape-stored 10-bit HLG HEVC turned by a display matrix, read at odd
+    crop offsets, comes back upright with the SDR colours it was made from."""
+    upright = quadrants(96, 128)
+    stored = write_hlg_video(tmp_path / "stored.mov", np.stack([np.rot90(upright, k=-1)] * 2))
+    source = open_source(with_rotation(stored, tmp_path / "iphone.mov", 90))
+    assert (source.width, source.height, source.transfer, source.deep) == (128, 96, "HLG", True)
+    (_, image), _ = read(source, Region(33, 25, 62, 46))
+    assert np.abs(interior(image).astype(int) - interior(quadrants(46, 62))).mean() <= HDR_ROUND_TRIP_TOLERANCE
 
 
 def test_sdr_video_has_no_transfer(tmp_path):
