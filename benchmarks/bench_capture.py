@@ -498,19 +498,30 @@ def capture_case(
     motion: str = "walk",
     true_masks: bool = True,
     polish: bool = False,
+    given_height: bool = False,
 ) -> tuple[dict, np.ndarray]:
     """Video, capture, metrics (and the fits with ``fit``) of one seed x background: the row and its tiles.
 
     d's second reference (the true masks too) is fitted only with ``true_masks``; with ``polish``, d
-    also captures the video with ``--polish`` (the shipped prior) and fits and scores that subject.
+    also captures the video with ``--polish`` (the shipped prior) and fits and scores that subject;
+    with ``given_height``, the capture is told the walker's true height (``--height``), as a user
+    who knows theirs would.
     """
+    import torch
+
+    from pghm.body import load_body
+    from pghm.capture.bodyfit import rest_height
+
     name = f"{kind}_{seed}_{frames}f" if motion == "walk" else f"{motion}_{kind}_{seed}_{frames}f"
     video = work / f"{name}.mp4"
     config = walk_config(frames, *SIZE, motion=motion)
     truth = render_walk_video(config, seed, video, background(kind, seed, *SIZE), progress=True)
     subject_dir = work / name
     shutil.rmtree(subject_dir, ignore_errors=True)  # a --keep folder's subjects are made again; its fits are reused
-    run = run_capture(video, subject_dir, work / f"{name}.log", ("--every", "1"))  # the truth has every frame
+    body = load_body("anny")
+    true_height = rest_height(body, torch.as_tensor(truth.arrays.shape))
+    options = ("--every", "1") + (("--height", f"{true_height:.3f}") if given_height else ())  # the truth: every frame
+    run = run_capture(video, subject_dir, work / f"{name}.log", options)
     comparison = measure(truth, subject_dir)
     row = {
         "motion": motion,
@@ -519,6 +530,9 @@ def capture_case(
         "frames": frames,
         **{k: v for k, v in comparison.metrics.items() if k != "per_frame"},
         "check_problems": len(check(subject_dir)),
+        "true_height_m": round(true_height, 3),
+        "height_m": round(rest_height(body, torch.as_tensor(Subject.open(subject_dir).arrays.shape)), 3),
+        "given_height": given_height,
         "capture_s": round(run.seconds, 1),
         "peak_gb": round(run.peak_gb, 2),
         "per_frame": comparison.metrics["per_frame"],
@@ -764,6 +778,11 @@ def main() -> int:
         action="store_true",
         help="d also on the video captured with --polish (the shipped prior): a fit on all frames more a case",
     )
+    parser.add_argument(
+        "--given-height",
+        action="store_true",
+        help="tell the capture each walker's true height (--height), as a user who knows theirs would",
+    )
     parser.add_argument("--keep", help="keep the videos and subjects here instead of a temporary folder")
     parser.add_argument(
         "--results",
@@ -794,7 +813,15 @@ def main() -> int:
             for kind in args.backgrounds:
                 fit = f"{kind}_{seed}" in fit_cases
                 row, tile = capture_case(
-                    work, seed, kind, args.frames, fit, args.motion, not args.no_true_masks, args.polish
+                    work,
+                    seed,
+                    kind,
+                    args.frames,
+                    fit,
+                    args.motion,
+                    not args.no_true_masks,
+                    args.polish,
+                    args.given_height,
                 )
                 rows.append(row)
                 tiles.append(tile)

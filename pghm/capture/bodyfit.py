@@ -56,6 +56,7 @@ from torch import Tensor
 from pghm.body import BodyModel, load_body
 from pghm.body.model import CANONICAL_JOINTS
 from pghm.body.skinning import forward_kinematics, kinematic_levels, lbs
+from pghm.capture.config import HEIGHT_RANGE_M
 from pghm.capture.landmarks import BODY_LANDMARKS, LANDMARK_NAMES, NUM_LANDMARKS, landmark_regressor
 from pghm.capture.pose_prior import load_pose_prior, robust_mahalanobis
 from pghm.capture.swaps import Landmarks, repair_swaps
@@ -187,6 +188,15 @@ class BodyFitConfig:
 
     seed: int = 0
     """Random subsampling of vertices and mask pixels."""
+
+    height_m: float | None = None
+    """The person's height in metres when known (``pghm capture --height``): the shape starts, and
+    the shape prior pulls, at Anny's average body with its height phenotype set to it
+    (:func:`shape_of_height`), and the shape stage holds the rest body's height to it (the term
+    ``weight_height ((h(s) - height_m) / HEIGHT_SCALE_M)^2``, h the crown-to-sole extent). One
+    uncalibrated video does not tell a person's size: without it every walker of capture-bench,
+    1.68-1.89 m tall, was fitted 1.60-1.62 m (docs/capture.md)."""
+    weight_height: float = 1.0
 
     def validate(self) -> BodyFitConfig:
         if self.body != "anny":
@@ -360,6 +370,40 @@ def _prepare(observations: Observations, config: BodyFitConfig, rng: np.random.G
     )
 
 
+HEIGHT_PHENOTYPE = "height"
+"""Anny's phenotype that sets the body's height (the rest body's height is linear in it: 1.12 m at
+0, 1.63 at 0.5, 2.13 at 1, the other phenotypes at their average)."""
+
+HEIGHT_SCALE_M = 0.01
+"""The given height's term is 1 (times its weight) a centimetre off."""
+
+HEIGHT_BISECTIONS = 16
+"""Bisection steps of :func:`shape_of_height`: the phenotype to 2^-16, about 0.02 mm of height."""
+
+
+def rest_height(body: BodyModel, shape: Tensor) -> float:
+    """The rest body's height in metres: its vertices' extent along y (up)."""
+    vertices = body.rest(shape).vertices
+    return float(vertices[:, 1].max() - vertices[:, 1].min())
+
+
+def shape_of_height(body: BodyModel, height_m: float) -> Tensor:
+    """(S,) the body's default shape with its height phenotype set so that the rest body is
+    ``height_m`` tall (bisection: the height grows with the phenotype); :class:`PghmError` outside
+    :data:`HEIGHT_RANGE_M`."""
+    low_m, high_m = HEIGHT_RANGE_M
+    if not low_m <= height_m <= high_m:
+        raise PghmError(f"--height {height_m:g} m: the body model spans {low_m:g}-{high_m:g} m")
+    shape = body.default_shape()
+    k = body.shape_names.index(HEIGHT_PHENOTYPE)
+    low, high = 0.0, 1.0
+    for _ in range(HEIGHT_BISECTIONS):
+        shape[k] = (low + high) / 2
+        low, high = (float(shape[k]), high) if rest_height(body, shape) < height_m else (low, float(shape[k]))
+    shape[k] = (low + high) / 2
+    return shape
+
+
 class _ShapeModel:
     """The rest body's needed vertices and fitted joints, linear in the shape around ``centre``.
 
@@ -457,8 +501,14 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
     vertex_ids = torch.cat([regressor_index.reshape(-1), silhouette])
     weights = (body.skin_weights[vertex_ids] @ skeleton.fold).contiguous()
     shape_model = _ShapeModel(body, vertex_ids, skeleton.bones)
-    shape0 = body.default_shape()
+    shape0 = body.default_shape() if config.height_m is None else shape_of_height(body, config.height_m)
     shape_model.linearise(shape0)
+    # The crown and the lowest sole of the rest body: its height, linear in the shape as the rest is.
+    height_model = None
+    if config.height_m is not None:
+        rest_y = body.rest(shape0).vertices[:, 1]
+        height_model = _ShapeModel(body, torch.stack([rest_y.argmax(), rest_y.argmin()]), [])
+        height_model.linearise(shape0)
     levels = kinematic_levels(skeleton.parents)
     num_land = len(BODY_LANDMARKS)
     hips = [BODY_LANDMARKS.index(LANDMARK_NAMES.index(name)) for name in HIPS]
@@ -552,6 +602,9 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
             terms["limits"] = config.weight_limits * ((limits**2).sum() + (twist**2).sum()) / frames
         if stage > 1:
             terms["shape"] = config.weight_shape * ((shape - shape0) ** 2).sum()
+            if height_model is not None:
+                ends = height_model(shape)[0][:, 1]
+                terms["height"] = config.weight_height * ((ends[0] - ends[1] - config.height_m) / HEIGHT_SCALE_M) ** 2
             vpix = _project(verts, focal, centre, camera)
             grid = _map_grid(vpix, data.mask_step, data.outside.shape[-2:])
             outside = torch.nn.functional.grid_sample(
@@ -577,7 +630,8 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
         optimiser = torch.optim.Adam(groups)
         for step in range(steps):
             if stage == 2 and step == steps // 2:
-                shape_model.linearise(torch.sigmoid(shape_logit).detach())
+                for model in (shape_model, height_model) if height_model is not None else (shape_model,):
+                    model.linearise(torch.sigmoid(shape_logit).detach())
             loss, terms = objective(stage)
             optimiser.zero_grad()
             loss.backward()

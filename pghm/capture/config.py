@@ -47,6 +47,10 @@ track (30 steps a training frame, docs/training.md). On 2 cores, mostly idle, th
 minute of 30 frames/s video, three and a half hours. 100 frames is also what ``pghm fit`` was
 measured on end to end (bench_capture's d)."""
 
+HEIGHT_RANGE_M = (1.12, 2.13)
+"""Heights (metres) Anny's average body reaches with its height phenotype in [0, 1]: the range of
+``--height`` (a test checks them against the body model)."""
+
 DEFAULT_CROP_MARGIN = 0.1
 """Margin added on each side of the region the person occupies, as a fraction of that
 region's longest side (room for a hand the segmentation clipped)."""
@@ -99,6 +103,10 @@ class CaptureConfig:
     fit keeps only its per-joint L2 prior and joint limits: for motions far from the clips it
     was learned from (walking, sitting), such as dancing."""
 
+    height_m: float | None = None
+    """The person's height in metres, when known (:attr:`BodyFitConfig.height_m`); None: the body
+    fit's average adult (one uncalibrated video does not tell a person's size)."""
+
     polish: str | None = None
     """A prior file (``pghm train-prior``'s, e.g. assets/prior.pt): after the body fit, align every
     frame's pose to its image through an avatar personalised from it on all frames
@@ -132,6 +140,9 @@ class CaptureConfig:
             raise PghmError(f"crop_margin must be in [0, 1], got {self.crop_margin}")
         if self.min_frames < 2:
             raise PghmError(f"min_frames must be >= 2, got {self.min_frames}")
+        if self.height_m is not None and not HEIGHT_RANGE_M[0] <= self.height_m <= HEIGHT_RANGE_M[1]:
+            low, high = HEIGHT_RANGE_M
+            raise PghmError(f"--height must be {low:g} to {high:g} m (the body model's range), got {self.height_m}")
         if self.polish is not None and not Path(self.polish).is_file():
             raise PghmError(f"--polish {self.polish}: no such prior file")
         return self

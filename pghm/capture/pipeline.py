@@ -324,6 +324,8 @@ def _write(folder: Path, config: CaptureConfig, front: FrontEnd) -> None:
     body_config = config.body or BodyFitConfig()
     if not config.pose_prior:
         body_config = replace(body_config, weight_motion_prior=0.0)
+    if config.height_m is not None:
+        body_config = replace(body_config, height_m=config.height_m)
     fit = fit_body(observations, body_config)
     n = len(observations.frame_index)
     train, test = split_indices(n, config.test_every)

@@ -1,7 +1,7 @@
 """``pghm capture``: a video of a person becomes a subject folder (docs/capture.md).
 
     pghm capture INPUT --out SUBJECT [--every N] [--max-frames N] [--target-frames N] [--size PX]
-                 [--fov DEG | --focal PX] [--test-every N] [--no-mirror-pass] [--no-pose-prior]
+                 [--fov DEG | --focal PX] [--height M] [--test-every N] [--no-mirror-pass] [--no-pose-prior]
                  [--polish PRIOR] [--quiet]
 
 INPUT is a video file (mp4, mov, webm, avi, anything ffmpeg reads) or a folder of images.
@@ -17,6 +17,7 @@ from pghm.capture.config import (
     DEFAULT_TARGET_FRAMES,
     DEFAULT_TEST_EVERY,
     FOV_RANGE_DEG,
+    HEIGHT_RANGE_M,
     MAX_FOCAL_PX,
     MIN_SIZE,
     CaptureConfig,
@@ -33,6 +34,7 @@ def _capture(args: argparse.Namespace) -> int:
         every=args.every,
         max_frames=args.max_frames,
         target_frames=args.target_frames,
+        height_m=args.height,
         size=args.size,
         fov_deg=args.fov,
         focal_px=args.focal,
@@ -92,6 +94,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=Real(0.0, MAX_FOCAL_PX, open_low=True),
         default=None,
         help="focal length in pixels of the full-resolution frames",
+    )
+    parser.add_argument(
+        "--height",
+        type=Real(*HEIGHT_RANGE_M),
+        default=None,
+        metavar="M",
+        help="the person's height in metres, when known: one video does not tell a person's size "
+        "(default: the body model's average adult, 1.63 m)",
     )
     parser.add_argument(
         "--test-every",
