@@ -197,6 +197,7 @@ class BodyFitConfig:
     uncalibrated video does not tell a person's size: without it every walker of capture-bench,
     1.68-1.89 m tall, was fitted 1.60-1.62 m (docs/capture.md)."""
     weight_height: float = 1.0
+    """Weight of the height term (untuned: at 1 the fitted height is the given one to the millimetre)."""
 
     def validate(self) -> BodyFitConfig:
         if self.body != "anny":
@@ -509,6 +510,7 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
         rest_y = body.rest(shape0).vertices[:, 1]
         height_model = _ShapeModel(body, torch.stack([rest_y.argmax(), rest_y.argmin()]), [])
         height_model.linearise(shape0)
+    shape_models = [model for model in (shape_model, height_model) if model is not None]
     levels = kinematic_levels(skeleton.parents)
     num_land = len(BODY_LANDMARKS)
     hips = [BODY_LANDMARKS.index(LANDMARK_NAMES.index(name)) for name in HIPS]
@@ -630,7 +632,7 @@ def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
         optimiser = torch.optim.Adam(groups)
         for step in range(steps):
             if stage == 2 and step == steps // 2:
-                for model in (shape_model, height_model) if height_model is not None else (shape_model,):
+                for model in shape_models:
                     model.linearise(torch.sigmoid(shape_logit).detach())
             loss, terms = objective(stage)
             optimiser.zero_grad()
