@@ -85,17 +85,28 @@ def with_rotation(source: Path, path: Path, degrees: int) -> Path:
     return path
 
 
-def write_encoded(path: Path, frames: np.ndarray, codec: str, pixel_format: str, interlaced: bool = False) -> Path:
+def write_encoded(
+    path: Path, frames: np.ndarray, codec: str, pixel_format: str, interlaced: bool = False, options: tuple = ()
+) -> Path:
     """Write (T, H, W, 3) uint8 frames with ffmpeg's encoder ``codec`` in ``pixel_format`` (e.g. 10-bit
     HEVC, ProRes 422), at its default quality; ``interlaced``: as x264's top-field-first interlaced
-    frames (even rows the first field)."""
+    frames (even rows the first field); ``options``: more output options (filters, colour tags)."""
     height, width = frames.shape[1:3]
     command = [ffmpeg(), "-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{width}x{height}"]
-    command += ["-r", "10", "-i", "-", "-c:v", codec, "-pix_fmt", pixel_format]
+    command += ["-r", "10", "-i", "-", *options, "-c:v", codec, "-pix_fmt", pixel_format]
     command += ["-x265-params", "log-level=error"] if codec == "libx265" else []
     command += ["-flags", "+ildct+ilme", "-x264-params", "tff=1", "-crf", "10"] if interlaced else []
     subprocess.run([*command, str(path)], input=np.ascontiguousarray(frames).tobytes(), check=True)
     return path
+
+
+HDR_TAGS = {"HLG": "arib-std-b67", "PQ": "smpte2084"}
+"""The names users know of the HDR transfer functions -> ffmpeg's."""
+
+
+def hdr_tags(transfer: str) -> list[str]:
+    """ffmpeg's colour tags of a BT.2020 video with the HDR ``transfer`` (a key of :data:`HDR_TAGS`)."""
+    return ["-color_primaries", "bt2020", "-color_trc", HDR_TAGS[transfer], "-colorspace", "bt2020nc"]
 
 
 def write_hlg_video(path: Path, frames: np.ndarray) -> Path:
@@ -103,14 +114,9 @@ def write_hlg_video(path: Path, frames: np.ndarray) -> Path:
     the HLG transfer (SDR's white at HDR's reference white, ITU-R BT.2408)."""
     from pghm.capture.video import REFERENCE_WHITE_NITS
 
-    height, width = frames.shape[1:3]
     to_hlg = "zscale=tin=bt709:min=bt709:pin=bt709:rin=full:t=arib-std-b67:m=bt2020nc:p=bt2020:r=tv"
-    tags = ["-color_primaries", "bt2020", "-color_trc", "arib-std-b67", "-colorspace", "bt2020nc"]
-    command = [ffmpeg(), "-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{width}x{height}"]
-    command += ["-r", "10", "-i", "-", "-vf", f"{to_hlg}:npl={REFERENCE_WHITE_NITS},format=yuv420p10le"]
-    command += ["-c:v", "libx265", "-x265-params", "log-level=error", "-pix_fmt", "yuv420p10le", *tags, str(path)]
-    subprocess.run(command, input=np.ascontiguousarray(frames).tobytes(), check=True)
-    return path
+    options = ("-vf", f"{to_hlg}:npl={REFERENCE_WHITE_NITS},format=yuv420p10le", *hdr_tags("HLG"))
+    return write_encoded(path, frames, "libx265", "yuv420p10le", options=options)
 
 
 def with_sample_aspect(source: Path, path: Path, aspect: tuple[int, int]) -> Path:
@@ -122,17 +128,12 @@ def with_sample_aspect(source: Path, path: Path, aspect: tuple[int, int]) -> Pat
     return path
 
 
-HDR_TAGS = {"HLG": "arib-std-b67", "PQ": "smpte2084"}
-"""The names users know of the HDR transfer functions -> ffmpeg's."""
-
-
 def write_flat_hdr_video(path: Path, signals: list[float], transfer: str, size: int = 64) -> Path:
     """A 10-bit BT.2020 HEVC video (as an iPhone records) of flat grey frames, frame k at the HDR
     ``transfer``'s signal ``signals[k]`` in [0, 1] (limited range: Y' = 64 + 876 signal), lossless."""
     luma, chroma = size * size, (size // 2) ** 2
     planes = [np.concatenate([np.full(luma, round(64 + 876 * v)), np.full(2 * chroma, 512)]) for v in signals]
-    tags = ["-color_primaries", "bt2020", "-color_trc", HDR_TAGS[transfer], "-colorspace", "bt2020nc"]
-    tags += ["-color_range", "tv"]
+    tags = [*hdr_tags(transfer), "-color_range", "tv"]
     command = [ffmpeg(), "-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "yuv420p10le", "-s", f"{size}x{size}"]
     command += ["-r", "10", *tags, "-i", "-", "-c:v", "libx265", "-x265-params", "log-level=error:lossless=1"]
     command += ["-pix_fmt", "yuv420p10le", *tags, str(path)]

@@ -71,6 +71,11 @@ DEINTERLACE_FILTER = "bwdif=mode=send_frame:deint=interlaced"
 """One progressive frame per interlaced frame (so frame numbers stay the source's), from its first
 field and its neighbours' (Bob Weaver); frames not flagged interlaced pass untouched."""
 
+TO_SDR_FILTER = f"zscale=p=bt709:t=bt709:npl={REFERENCE_WHITE_NITS}"
+"""Maps an RGB (:data:`WORKING_FORMAT`) HDR frame (HLG or PQ, BT.2020) to SDR BT.709, reference white
+to white: zscale linearises the input (HLG with its system gamma for a 1000 cd/m^2 display),
+converts the primaries, and encodes BT.709 with ``npl`` = :data:`REFERENCE_WHITE_NITS` as SDR's 1.0."""
+
 WORKING_FORMAT = "gbrp16le"
 """What a deep video's frames are converted to before cropping: ffmpeg's exact crop at an odd
 offset of a subsampled deep format (10-bit HEVC and VP9, ProRes 422, 12-bit) scrambles its
@@ -100,16 +105,6 @@ def has_filter(name: str) -> bool:
     """Whether imageio-ffmpeg's ffmpeg has the video filter ``name`` (its builds differ by platform)."""
     listing = subprocess.run([_ffmpeg(), "-hide_banner", "-filters"], capture_output=True, text=True, errors="replace")
     return any(line.split()[1:2] == [name] for line in listing.stdout.splitlines())
-
-
-def to_sdr_filter() -> str:
-    """The ffmpeg filter mapping an RGB (:data:`WORKING_FORMAT`) HDR frame (HLG or PQ, BT.2020) to SDR
-    BT.709, reference white to white.
-
-    zscale linearises the input (HLG with its system gamma for a 1000 cd/m^2 display), converts the
-    primaries, and encodes BT.709 with ``npl`` = :data:`REFERENCE_WHITE_NITS` as SDR's 1.0.
-    """
-    return f"zscale=p=bt709:t=bt709:npl={REFERENCE_WHITE_NITS}"
 
 
 def _last_line(text: str) -> str:
@@ -208,7 +203,7 @@ class VideoFile:
         interlaced video deinterlaced (before the stride, which would take away the neighbouring
         frames it uses), a deep video converted to :data:`WORKING_FORMAT`, non-square pixels
         stretched to square, ``crop`` with exact odd offsets, ``scale`` with area averaging, then an
-        HDR video's :func:`to_sdr_filter` on the small frame.
+        HDR video's :data:`TO_SDR_FILTER` on the small frame.
         ``-fps_mode passthrough`` keeps one output frame per decoded frame, so the k-th frame
         read is source frame k * every even in variable-frame-rate videos.
         """
@@ -225,7 +220,7 @@ class VideoFile:
         if (height, width) != (region.height, region.width):
             filters.append(f"scale={width}:{height}:flags=area")
         if self.tone_mapped:
-            filters.append(to_sdr_filter())
+            filters.append(TO_SDR_FILTER)
         command = [_ffmpeg(), "-hide_banner", "-nostdin", "-loglevel", "error", "-i", str(self.path)]
         command += ["-map", "0:V:0", "-vf", ",".join(filters) or "null", "-fps_mode", "passthrough"]
         if max_frames is not None:
