@@ -90,6 +90,8 @@ SPEED_FRAMES = 300
 SIZE = (512, 384)
 """Width, height of the videos: the "mono" preset's (landscape, as phone videos)."""
 PRIOR = ROOT / "assets" / "prior.pt"
+PGHM = [sys.executable, "-m", "pghm.cli.main"]
+"""The pghm command, run in a child process of this interpreter."""
 BYTES_PER_GB = 1e9
 KB = 1024
 """ru_maxrss is in kilobytes on Linux."""
@@ -139,7 +141,7 @@ def run_capture(video: Path, out: Path, log: Path, options: tuple[str, ...] = ()
     ``os.wait4`` gives the child's resource usage: ru_maxrss (kB) is the largest resident
     set of the child and the processes it waited for (the ffmpeg reader).
     """
-    command = [sys.executable, "-m", "pghm.cli.main", "capture", str(video), "--out", str(out), *options]
+    command = [*PGHM, "capture", str(video), "--out", str(out), *options]
     started = time.perf_counter()
     with open(log, "w") as sink:
         process = subprocess.Popen(command, stdout=sink, stderr=sink)
@@ -342,30 +344,68 @@ REFINE_STEPS = 30
 """Test-time pose refinement steps of d's second evaluation (``pghm eval --refine-poses``)."""
 
 
+EVALUATIONS = {"": [], "track_": ["--fit-poses"], "refined_": ["--refine-poses", str(REFINE_STEPS)]}
+"""d's three evaluations of an avatar (report prefix: ``pghm eval`` options): the stored poses, the
+fit's pose track, the poses refined against the test images."""
+
+
 def fit_and_eval(subject_dir: Path, avatar: Path) -> dict:
-    """``pghm fit`` (defaults, the shipped prior) then ``pghm eval --split test`` three times: with
-    the stored poses, with the fit's pose track (``--fit-poses``), and with the poses refined
-    against the test images (the avatar frozen); summaries and seconds.
+    """``pghm fit`` (defaults, the shipped prior) then ``pghm eval --split test`` three times
+    (:data:`EVALUATIONS`); summaries and seconds.
 
     An avatar or report already in a ``--keep`` folder is reused (``pghm fit`` and ``pghm eval``
     write whole files or none), so an interrupted d run resumes where it stopped; its fit's
     seconds are those recorded beside it (``None`` when it was not recorded).
     """
-    pghm = [sys.executable, "-m", "pghm.cli.main"]
     timing = avatar.with_suffix(".fit_seconds.json")
     if not avatar.exists():
         started = time.perf_counter()
-        subprocess.run([*pghm, "fit", str(subject_dir), "--prior", str(PRIOR), "--out", str(avatar)], check=True)
+        subprocess.run([*PGHM, "fit", str(subject_dir), "--prior", str(PRIOR), "--out", str(avatar)], check=True)
         timing.write_text(json.dumps(round(time.perf_counter() - started, 1)))
     out = {"fit_seconds": json.loads(timing.read_text()) if timing.exists() else None}
-    for name, poses in (("", []), ("track_", ["--fit-poses"]), ("refined_", ["--refine-poses", str(REFINE_STEPS)])):
-        report = avatar.with_suffix(f".{name}eval.json")
-        evaluate = [*pghm, "eval", str(avatar), str(subject_dir), "--split", "test", "--report", str(report)]
+    return out | evaluate(avatar, subject_dir, avatar.with_suffix(""), EVALUATIONS)
+
+
+def evaluate(avatar: Path, subject_dir: Path, reports: Path, evaluations: dict[str, list[str]]) -> dict:
+    """``pghm eval --split test`` of ``avatar`` on ``subject_dir``, once per entry of ``evaluations``
+    (its report ``reports.{prefix}eval.json`` and strip ``.png``, reused when present); each one's PSNR
+    and SSIM."""
+    out = {}
+    for name, poses in evaluations.items():
+        report = reports.with_name(f"{reports.name}.{name}eval.json")
         if not report.exists():
-            subprocess.run([*evaluate, *poses], check=True)
+            evaluation = [*PGHM, "eval", str(avatar), str(subject_dir), "--split", "test", "--report", str(report)]
+            subprocess.run([*evaluation, "--strip", str(report.with_suffix(".png")), *poses], check=True)
         summary = json.loads(report.read_text())["mean"]
         out.update({f"{name}psnr": float(summary["psnr"]), f"{name}ssim": float(summary["ssim"])})
     return out
+
+
+def same_training_split(a: Path, b: Path) -> bool:
+    """Whether ``pghm fit`` sees the same data in subject folders ``a`` and ``b``: the same splits,
+    cameras, shape and stated pose noise, and the same poses, images and masks of the training
+    frames (:mod:`pghm.capture.polish` changes only the held-out frames' poses)."""
+    from pghm.data.subject import image_name
+
+    first, second = Subject.open(a), Subject.open(b)
+    x, y = first.arrays, second.arrays
+    train = x.splits.get("train", [])
+    if x.splits != y.splits or first.meta.get("pose_noise") != second.meta.get("pose_noise"):
+        return False
+    for name in ("K", "world_to_camera", "shape"):
+        if not np.array_equal(getattr(x, name), getattr(y, name)):
+            return False
+    if not all(np.array_equal(getattr(x, n)[train], getattr(y, n)[train]) for n in ("rotations", "translation")):
+        return False
+    files = [f"{folder}/{image_name(i)}" for folder in ("images", "masks") for i in train]
+    return all((a / f).read_bytes() == (b / f).read_bytes() for f in files)
+
+
+def held_out_joints(metrics: dict, frames: list[int]) -> dict:
+    """b and c (:data:`JOINT_KEYS`) of the source frames ``frames`` alone, from ``measure``'s per-frame figures."""
+    per_frame = metrics["per_frame"]
+    rows = [per_frame["frame"].index(f) for f in frames]
+    return {key: float(np.mean([per_frame[key][k] for k in rows])) for key in JOINT_KEYS}
 
 
 # ------------------------------------------------------------------ figures
@@ -426,7 +466,8 @@ def frame_tiles(truth: WalkTruth, video: Path, subject_dir: Path, comparison: Co
 
 
 def plot_metrics(rows: list[dict], path: Path) -> None:
-    """One panel per metric: each seed x background against its target."""
+    """One panel per metric: each seed x background against its target (b and c of a polished
+    capture's test frames, before and after the polish, as diamonds over the bars)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -447,10 +488,11 @@ def plot_metrics(rows: list[dict], path: Path) -> None:
         gap_panel(axes[-1], rows, labels)
     for ax, (title, key, targets, better) in zip(axes, panels):
         ax.bar(x, [r[key] for r in rows], color=colours)
-        if any(f"polished_{key}" in r for r in rows):
-            polished = [r.get(f"polished_{key}", np.nan) for r in rows]
-            ax.plot(x, polished, "kD", markersize=5, label="--polish capture")
-            ax.legend(fontsize=7, loc="lower right")
+        for which, filled, name in (("unpolished", "none", "test frames as captured"), ("polished", "k", "--polish")):
+            if any(f"{which}_{key}" in r for r in rows):
+                values = [r.get(f"{which}_{key}", np.nan) for r in rows]
+                ax.plot(x, values, "D", color="k", markerfacecolor=filled, markersize=5, linestyle="none", label=name)
+                ax.legend(fontsize=7, loc="lower right")
         for name, value in targets:
             ax.axhline(value, color="k", linestyle="--", linewidth=1)
             ax.text(len(rows) - 0.5, value, f" target {name}".rstrip(), va="bottom", ha="right", fontsize=8)
@@ -554,10 +596,22 @@ def capture_case(
             polished = work / f"{name}_polished"
             if not polished.exists():  # written whole or not at all: a --keep folder's is reused
                 run_capture(video, polished, work / f"{name}_polished.log", ("--every", "1", "--polish", str(PRIOR)))
-            row["polish"] = json.loads((polished / "meta.json").read_text())["polish"]
-            joints = measure(truth, polished).metrics  # b and c of the stored poses the polish corrected
+            meta = json.loads((polished / "meta.json").read_text())
+            row["polish"], aligned = meta["polish"], meta["aligned_frames"]
+            # b and c of the frames the polish aligned, before and after (the others are as captured).
+            row.update({f"unpolished_{k}": v for k, v in held_out_joints(comparison.metrics, aligned).items()})
+            joints = held_out_joints(measure(truth, polished).metrics, aligned)
             row.update({f"polished_{key}": joints[key] for key in JOINT_KEYS})
-            row["fit"]["polished"] = fit_and_eval(polished, work / f"{kind}_{seed}_polished.pt")
+            if same_training_split(subject_dir, polished):
+                # pghm fit reads only the training frames, which the polish left as captured: its
+                # avatar is the captured subject's (its pose track is of the other poses: no track_).
+                row["polish"]["fit"] = "the captured subject's (same training frames)"
+                unchanged = {k: v for k, v in EVALUATIONS.items() if k != "track_"}
+                captured_avatar = work / f"{kind}_{seed}_captured.pt"
+                reports = work / f"{kind}_{seed}_captured_on_polished"
+                row["fit"]["polished"] = evaluate(captured_avatar, polished, reports, unchanged)
+            else:
+                row["fit"]["polished"] = fit_and_eval(polished, work / f"{kind}_{seed}_polished.pt")
             row["psnr_gap_polished_db"] = round(poses["psnr"] - row["fit"]["polished"]["psnr"], 2)
         if true_masks:
             every = row["fit"]["true_all"]
@@ -687,7 +741,7 @@ def report(
             columns += ["psnr_gap_db", "psnr_gap_track_db", "psnr_gap_refined_db", "psnr_gap_all_db"]
             columns += ["psnr_gap_all_refined_db", "psnr_gap_polished_db"]
         if any("psnr_gap_polished_db" in r for r in rows):
-            columns += [f"polished_{key}" for key in JOINT_KEYS]
+            columns += [f"{which}_{key}" for key in JOINT_KEYS for which in ("unpolished", "polished")]
         print_table(rows + background_means(rows), columns)
         figure = figure_name(args.results)
         plot_metrics(rows, DOCS / f"{figure}.png")
@@ -776,7 +830,7 @@ def main() -> int:
     parser.add_argument(
         "--polish",
         action="store_true",
-        help="d also on the video captured with --polish (the shipped prior): a fit on all frames more a case",
+        help="d also on the video captured with --polish (the shipped prior): one fit on all frames more a case",
     )
     parser.add_argument(
         "--given-height",

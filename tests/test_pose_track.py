@@ -70,6 +70,35 @@ def test_a_correction_linear_in_time_is_carried_exactly(subject, body):
     assert torch.equal(own.rotations[0], learned.rotations[0])
 
 
+def test_a_frame_aligned_to_its_image_keeps_its_stored_pose(subject, body):
+    """meta.json's aligned_frames (a polished capture's held-out frames): the track interpolates
+    nothing onto them, in eval and in the subject played as a motion; a trained frame listed there
+    keeps its own correction."""
+    from pghm.data.open_motion import subject_motion
+
+    train = TrainingData(subject)
+    learned = train.pose_corrections(body)
+    with torch.no_grad():
+        learned.translation[0], learned.translation[2] = torch.tensor([0.02, 0.0, 0.0]), torch.tensor([0.04, 0.0, 0.0])
+    track = learned_track(learned, train)
+    meta = json.loads((subject / "meta.json").read_text())
+    played = subject_motion(subject, track).translation
+    np.testing.assert_allclose(played[1] - played_stored(subject)[1], [0.03, 0.0, 0.0], atol=1e-6)  # interpolated
+    (subject / "meta.json").write_text(json.dumps({**meta, "aligned_frames": [1, 2]}))
+    held_out, counts = track_corrections(track, TrainingData(subject, split="test"), body)
+    assert counts == {"trained": 0, "interpolated": 0, "stored": 1}
+    assert not held_out.translation[1].any() and not held_out.rotations[1].any()
+    played = subject_motion(subject, track).translation
+    np.testing.assert_allclose(played - played_stored(subject), [[0.02, 0, 0], [0, 0, 0], [0.04, 0, 0]], atol=1e-6)
+
+
+def played_stored(subject) -> np.ndarray:
+    """(3, 3) the tiny subject's frames' stored root translations, as a motion plays them untracked."""
+    from pghm.data.open_motion import subject_motion
+
+    return subject_motion(subject).translation
+
+
 def shifted(source, out):
     """A copy of ``source`` with every stored root translation off by SHIFT."""
     shutil.copytree(source, out)

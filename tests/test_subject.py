@@ -95,6 +95,19 @@ def test_check_names_a_malformed_pose_noise(subject_dir, capsys):
     assert _cli_check(subject_dir, capsys)[0] == 2
 
 
+def test_check_names_malformed_aligned_frames(subject_dir, capsys):
+    meta = json.loads((subject_dir / "meta.json").read_text())
+    (subject_dir / "meta.json").write_text(json.dumps({**meta, "aligned_frames": [3, 11]}))
+    assert _problems(subject_dir) == [] and Subject.open(subject_dir).aligned_frames() == {3, 11}
+    for wrong in ([3, -1], [2.0], "3"):
+        (subject_dir / "meta.json").write_text(json.dumps({**meta, "aligned_frames": wrong}))
+        (problem,) = _problems(subject_dir)
+        assert problem.startswith("meta.json: 'aligned_frames' must be a list of frame numbers >= 0")
+        with pytest.raises(DatasetError, match="meta.json: 'aligned_frames'"):
+            Subject.open(subject_dir).aligned_frames()
+    assert _cli_check(subject_dir, capsys)[0] == 2
+
+
 def test_check_names_a_non_finite_camera(subject_dir, capsys):
     K = _array(subject_dir / "cameras.npz", "K")
     K[2, 0, 0] = np.nan

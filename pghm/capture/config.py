@@ -108,9 +108,9 @@ class CaptureConfig:
     fit's average adult (one uncalibrated video does not tell a person's size)."""
 
     polish: str | None = None
-    """A prior file (``pghm train-prior``'s, e.g. assets/prior.pt): after the body fit, align every
-    frame's pose to its image through an avatar personalised from it on all frames
-    (:mod:`pghm.capture.polish`; about 18 minutes per 100 frames on 2 cores). None: off."""
+    """A prior file (``pghm train-prior``'s, e.g. assets/prior.pt): after the body fit, align the
+    held-out (test) frames' poses to their images through an avatar personalised from it on all
+    frames (:mod:`pghm.capture.polish`; about 7 minutes per 100 frames on 2 cores). None: off."""
 
     progress: bool = True
     """A tqdm bar per stage on stderr."""

@@ -1,22 +1,26 @@
-"""Capture's optional last stage: every frame's pose aligned to its own image through an avatar.
+"""Capture's optional last stage: the held-out frames' poses aligned to their images through an avatar.
 
 The body fit places the body from landmarks and masks to 1.1-1.6 % of the person's height
 (bench_capture's c), while an avatar's held-out frame rendered 0.27 % (under a pixel) off the pose
 it learned already loses 1.5 dB (``benchmarks/bench_pose_error.py``): no estimator that reads a frame
 without an avatar of the person is that close. The polish makes one: it personalises a prior on
-*every* frame of the capture (:func:`pghm.train.fit.fit` on :data:`~pghm.data.subject.ALL_SPLIT`),
-settles each frame's pose correction against the finished avatar for :data:`POLISH_TRACK_STEPS`
-steps (:func:`pghm.train.test_poses.refine_poses`), and stores
+*every* frame of the capture (:func:`pghm.train.fit.fit` on :data:`~pghm.data.subject.ALL_SPLIT`,
+stage 2 correcting each frame's pose), settles the correction of each frame outside the training
+split against the finished avatar for :data:`POLISH_TRACK_STEPS` steps
+(:func:`pghm.train.test_poses.refine_poses`), and stores, for those held-out frames f,
 
     rotations'[f, bones] = rotations[f, bones] + delta_r[f],    translation'[f] = translation[f] + delta_t[f]
 
-for the estimator's joints (``bones``) of every frame f; shape, cameras, images and masks are
-unchanged, and the avatar is discarded. ``pghm fit`` then learns its own avatar from the training
-split alone, so no test image reaches the evaluated avatar; a test frame's pose has seen its own
-image, as any pose estimator's does, and here once, in the capture, rather than against the
-evaluated avatar (the test-time refinement of InstantAvatar and GART, ``pghm eval
---refine-poses``). It costs a fit with settling: about 18 minutes for 100 frames on 2 cores
-(docs/capture.md).
+for the estimator's joints (``bones``), listing them in meta.json's ``aligned_frames``; the training
+frames' poses, shape, cameras, images and masks are unchanged, and the avatar is discarded. The
+training frames are left to ``pghm fit``, which corrects and settles their poses itself against the
+avatar it learns from them alone, and no test image reaches that avatar. Settling every frame, as
+the polish did until 2026-11-27, took 2.5 times as long and met d of issue 22 no better, though
+``pghm fit`` learned a 0.3-0.6 dB sharper avatar from its aligned training poses (docs/capture.md).
+A test frame's pose has seen its own image, as any pose estimator's does, here once, in the capture,
+rather than against the evaluated avatar (the test-time refinement of InstantAvatar and GART, ``pghm
+eval --refine-poses``). It costs a fit and the held-out frames' settling: about 7 minutes for 100
+frames on 2 cores (docs/capture.md).
 """
 
 from __future__ import annotations
@@ -29,15 +33,24 @@ from pathlib import Path
 
 import numpy as np
 
+from pghm.body import load_body
 from pghm.data.subject import ALL_SPLIT, Subject, write_subject
 from pghm.io.avatar import Avatar, recorded_path
 from pghm.model import ModelConfig
-from pghm.train.fit import TRACK_STEPS, FitConfig, fit
+from pghm.train.data import TrainingData
+from pghm.train.fit import POSE_LR, TRACK_STEPS, FitConfig, fit
+from pghm.train.pose_track import track_corrections
+from pghm.train.test_poses import refine_poses
 
 POLISH_TRACK_STEPS = TRACK_STEPS
-"""Steps of each frame's pose refinement against the finished avatar. Always run, unlike ``pghm
-fit``'s settling (only for subjects whose frames stage 2 visits fewer than 20 times), since the
-corrections are what the polish keeps."""
+"""Steps of each held-out frame's pose refinement against the finished avatar, as ``pghm fit``
+settles its training frames."""
+
+
+def held_out_images(subject: Subject) -> list[int]:
+    """Image indices outside the subject's "train" split: the frames ``pghm fit`` does not correct."""
+    train = set(subject.split("train").indices)
+    return [i for i in range(len(subject)) if i not in train]
 
 
 def polish_poses(
@@ -46,18 +59,18 @@ def polish_poses(
     config: FitConfig | None = None,
     progress: bool = True,
 ) -> dict:
-    """Align every frame's stored pose in the subject folder ``subject_dir`` to its image (module
-    docstring), rewriting its poses.npz and adding meta.json's ``polish`` record, which is returned.
+    """Align the held-out frames' stored poses in the subject folder ``subject_dir`` to their
+    images (module docstring), rewriting its poses.npz and adding meta.json's ``polish`` record,
+    which is returned, and the frames to its ``aligned_frames`` (a fit's pose track leaves them as
+    stored, :meth:`pghm.io.avatar.PoseTrack.at`).
 
     ``prior``: the prior to personalise (a file, a loaded prior, or a :class:`ModelConfig` to start
     from scratch, for tests); ``config``: the fit's settings (default: ``pghm fit``'s), whose split
-    and pose settings (corrections of the stored poses, settled) the polish sets; ``progress``: the
-    fit's bars on stderr.
+    and pose settings (corrections of the stored poses, no settling of the training frames) the
+    polish sets; ``progress``: the fit's and the settling's bars on stderr.
     """
     subject_dir = Path(subject_dir)
-    config = replace(
-        config or FitConfig(), split=ALL_SPLIT, track_steps=POLISH_TRACK_STEPS, refine_poses=True, pose_smoothing=0.0
-    )
+    config = replace(config or FitConfig(), split=ALL_SPLIT, track_steps=0, refine_poses=True, pose_smoothing=0.0)
     if not progress:
         config = replace(
             config, stage1=replace(config.stage1, progress=False), stage2=replace(config.stage2, progress=False)
@@ -66,25 +79,43 @@ def polish_poses(
     with tempfile.TemporaryDirectory(prefix=".polish-", dir=subject_dir) as scratch:
         avatar = fit(subject_dir, prior, Path(scratch) / "polish.pt", config)
     subject = Subject.open(subject_dir)
+    held_out = held_out_images(subject)
+    data = TrainingData(subject_dir, split=ALL_SPLIT)
+    # Every frame was trained on: each starts from its own stage-2 correction.
+    corrections, _ = track_corrections(avatar.pose_track, data, load_body(data.body_name, config.body_model_path))
+    refine_poses(
+        avatar,
+        data,
+        POLISH_TRACK_STEPS,
+        config.stage2.loss,
+        POSE_LR,
+        corrections,
+        images=held_out,
+        body_model_path=config.body_model_path,
+        progress=progress,
+        desc="polish: settle held-out poses",
+    )
     arrays = subject.arrays
-    track = avatar.pose_track
     frames = arrays.frame_index if arrays.frame_index is not None else np.arange(len(arrays))
-    delta_r, delta_t, _, _ = track.at(frames, max_gap=0)  # every frame was trained on: its own row
-    delta_r, delta_t = delta_r.numpy(), delta_t.numpy()  # (F, K, 3) axis-angle, (F, 3) metres
+    rows = frames[held_out] + data.frame_offsets[0]
+    delta_r = corrections.rotations.detach()[rows].numpy()  # (H, K, 3) axis-angle
+    delta_t = corrections.translation.detach()[rows].numpy()  # (H, 3) metres
     rotations = np.array(arrays.rotations, dtype=np.float32)
-    rotations[:, track.bones.numpy()] += delta_r
-    translation = np.asarray(arrays.translation, dtype=np.float32) + delta_t
-    angles = np.linalg.norm(delta_r, axis=-1)
-    moved = np.linalg.norm(delta_t, axis=-1)
+    translation = np.array(arrays.translation, dtype=np.float32)
+    bones = corrections.bones.numpy()
+    rotations[np.ix_(held_out, bones)] += delta_r
+    translation[held_out] += delta_t
     record = {
         "prior": recorded_path(prior) if isinstance(prior, (str, Path)) else "(in memory)",
-        "frames": len(frames),
+        "frames": len(set(frames[held_out].tolist())),
+        "fit_images": int(avatar.metadata["training_images"]),
         "steps": avatar.metadata["steps"],
         "track_steps": POLISH_TRACK_STEPS,
         "seconds": round(time.perf_counter() - started, 1),
-        "mean_rotation_change_deg": round(math.degrees(float(angles.mean())), 3),
-        "mean_translation_change_mm": round(1000 * float(moved.mean()), 2),
+        "mean_rotation_change_deg": round(math.degrees(float(np.linalg.norm(delta_r, axis=-1).mean())), 3),
+        "mean_translation_change_mm": round(1000 * float(np.linalg.norm(delta_t, axis=-1).mean()), 2),
     }
     polished = replace(arrays, rotations=rotations, translation=translation)
-    write_subject(subject_dir, polished, {**subject.meta, "polish": record})
+    aligned = sorted(subject.aligned_frames() | {int(f) for f in frames[held_out]})
+    write_subject(subject_dir, polished, {**subject.meta, "polish": record, "aligned_frames": aligned})
     return record

@@ -124,8 +124,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--polish",
         metavar="PRIOR",
         default=None,
-        help="align every frame's pose to its image through an avatar fitted from this prior on all frames "
-        "(e.g. assets/prior.pt; about 18 minutes per 100 frames on 2 cores)",
+        help="align the test frames' poses to their images through an avatar fitted from this prior on all "
+        "frames (e.g. assets/prior.pt; about 7 minutes per 100 frames on 2 cores)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.set_defaults(func=_capture)

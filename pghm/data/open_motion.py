@@ -73,8 +73,9 @@ def subject_motion(directory: str | Path, track: PoseTrack | None = None) -> Mot
 
     With ``track``, the pose track of an avatar fitted on this subject, every frame takes the
     corrections the fit learned for it (:meth:`PoseTrack.at`: a trained frame its own, a held-out
-    one its neighbours' interpolated): the avatar replays its video with the poses it was fitted
-    with. A track learned on other poses (its digest differs) is ignored.
+    one its neighbours' interpolated, unless the capture aligned it to its image): the avatar
+    replays its video with the poses it was fitted with. A track learned on other poses (its
+    digest differs) is ignored.
     """
     from pghm.data.subject import Subject
 
@@ -87,7 +88,8 @@ def subject_motion(directory: str | Path, track: PoseTrack | None = None) -> Mot
     step = arrays.frame_step()
     rotations, translation = arrays.rotations[first].copy(), arrays.translation[first].copy()
     if track is not None and track.poses == arrays.poses_digest():
-        delta_rotations, delta_translation, _, _ = track.at(frames, MAX_BRACKET_STEPS * step)
+        aligned = subject.aligned_frames()
+        delta_rotations, delta_translation, _, _ = track.at(frames, MAX_BRACKET_STEPS * step, aligned)
         rotations[:, track.bones.numpy()] += delta_rotations.numpy()
         translation += delta_translation.numpy()
     return Motion(

@@ -173,6 +173,17 @@ def stated_pose_noise(meta: dict) -> tuple[float, float] | None:
     return float(values[0]), float(values[1])
 
 
+def stated_aligned_frames(meta: dict) -> frozenset[int]:
+    """Frame numbers (``frame_index``) whose stored pose a subject's meta.json says was fitted to
+    the frame's own image (optional ``aligned_frames``, written by ``pghm capture --polish``): a
+    fit's pose track carries no correction onto them (:meth:`pghm.io.avatar.PoseTrack.at`).
+    ValueError naming the problem for a malformed one."""
+    stated = meta.get("aligned_frames", [])
+    if not isinstance(stated, list) or not all(type(f) is int and f >= 0 for f in stated):
+        raise ValueError(f"'aligned_frames' must be a list of frame numbers >= 0, got {stated!r:.80}")
+    return frozenset(stated)
+
+
 def write_subject(directory: str | Path, arrays: SubjectArrays, meta: dict) -> None:
     """Write a subject's cameras.npz, poses.npz, splits.json and meta.json (atomically).
 
@@ -528,6 +539,13 @@ class Subject:
     def __len__(self) -> int:
         return len(self.arrays)
 
+    def aligned_frames(self) -> frozenset[int]:
+        """Frame numbers whose stored pose was fitted to the frame's own image (:func:`stated_aligned_frames`)."""
+        try:
+            return stated_aligned_frames(self.meta)
+        except ValueError as error:
+            raise DatasetError(f"{self.directory / 'meta.json'}: {error}") from None
+
     @property
     def split_names(self) -> list[str]:
         return list(self.arrays.splits)
@@ -722,6 +740,7 @@ def check_subject(directory: str | Path) -> list[Problem]:
                 problems.append(Problem("meta.json", f'"format" must be "{SUBJECT_FORMAT}"'))
             else:
                 stated_pose_noise(meta)
+                stated_aligned_frames(meta)
         except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as error:
             problems.append(Problem("meta.json", f"unreadable JSON ({error})"))
         except ValueError as error:

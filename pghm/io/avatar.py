@@ -88,19 +88,24 @@ class PoseTrack:
     translation: Tensor
     poses: str
 
-    def at(self, frames: np.ndarray, max_gap: int) -> tuple[Tensor, Tensor, np.ndarray, np.ndarray]:
+    def at(
+        self, frames: np.ndarray, max_gap: int, aligned: frozenset[int] = frozenset()
+    ) -> tuple[Tensor, Tensor, np.ndarray, np.ndarray]:
         """The corrections at frame numbers ``frames`` (Q,): a trained frame's own, or those of the
         trained frames on either side (at most ``max_gap`` apart) interpolated in time,
 
             delta_f = (1 - w) delta_a + w delta_b,    w = (f - a) / (b - a);
 
         the deltas are small axis-angle vectors, so this interpolates their rotations to first order.
+        A held-out frame in ``aligned`` (its stored pose already fitted to its own image, meta.json's
+        ``aligned_frames``) takes none: its neighbours' corrections would move it off its image.
 
         Returns rotations (Q, K, 3), translation (Q, 3) (zero where ``found`` is False), found (Q,)
         and exact (Q,) (a trained frame's own) boolean masks.
         """
         lower, upper, weight = bracket(self.frames.numpy(), np.asarray(frames), max_gap)
-        found = lower >= 0
+        exact = lower == upper
+        found = (lower >= 0) & (exact | ~np.isin(frames, list(aligned)))
         w = torch.as_tensor(weight, dtype=torch.float32)
         lo, hi = torch.as_tensor(np.maximum(lower, 0)), torch.as_tensor(np.maximum(upper, 0))
         out = []
@@ -108,7 +113,7 @@ class PoseTrack:
             weights = w.view(-1, *[1] * (known.dim() - 1))
             value = (1 - weights) * known[lo] + weights * known[hi]
             out.append(torch.where(torch.as_tensor(found).view_as(weights), value, torch.zeros_like(value)))
-        return out[0], out[1], found, found & (lower == upper)
+        return out[0], out[1], found, found & exact
 
 
 @dataclass

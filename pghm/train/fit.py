@@ -126,7 +126,7 @@ class FitConfig:
     fits and slower viewing (docs/training.md, "Resolution, steps and image size")."""
     split: str = "train"
     """The subject's split the avatar is fitted on (:data:`pghm.data.subject.ALL_SPLIT`: every
-    image, as ``pghm capture --polish`` does to align every frame's pose)."""
+    image, as ``pghm capture --polish`` does to align the held-out frames' poses)."""
     lpips: bool = True
     body_model_path: str | None = None
 

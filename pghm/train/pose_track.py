@@ -54,7 +54,8 @@ def track_corrections(track: PoseTrack, data: TrainingData, body: BodyModel) -> 
     """Corrections of every frame of ``data`` (one subject, e.g. its test split) from ``track``.
 
     Returns the corrections and how many of the data's frames took a trained frame's own
-    correction ("trained"), an interpolated one ("interpolated") or none ("stored").
+    correction ("trained"), an interpolated one ("interpolated") or none ("stored": not bracketed
+    by trained frames, or aligned to its own image, meta.json's ``aligned_frames``).
     """
     subject = data.subjects[0]
     if track.poses != subject.arrays.poses_digest():
@@ -66,7 +67,8 @@ def track_corrections(track: PoseTrack, data: TrainingData, body: BodyModel) -> 
     if not torch.equal(track.bones, corrections.bones):
         raise PghmError(f"the avatar's pose track corrects other bones than {data.body_name}'s estimated joints")
     frames = _frames_of(data)
-    rotations, translation, found, exact = track.at(frames, MAX_BRACKET_STEPS * subject.arrays.frame_step())
+    aligned = subject.aligned_frames()
+    rotations, translation, found, exact = track.at(frames, MAX_BRACKET_STEPS * subject.arrays.frame_step(), aligned)
     rows = torch.as_tensor(frames[found] + data.frame_offsets[0])
     with torch.no_grad():
         corrections.rotations[rows], corrections.translation[rows] = rotations[found], translation[found]
