@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
+import time
 import warnings
 
 import pytest
@@ -145,6 +148,54 @@ def test_auto_falls_back_to_torch_with_one_warning(monkeypatch):
 def test_auto_uses_the_native_kernel():
     assert native.is_available(), native._build()
     assert native.build_directory().is_dir()
+
+
+def test_each_torch_installation_builds_in_its_own_directory(monkeypatch):
+    here = native.build_directory()
+    monkeypatch.setattr(torch, "__file__", "/another/venv/site-packages/torch/__init__.py")
+    assert native.build_directory() != here
+    assert native.build_directory().parent == here.parent
+
+
+# A builder in another process: takes the lock, makes torch's baton, reports, then holds it.
+_BUILDER = """
+import os, sys, time
+from pathlib import Path
+from pghm.splat.native import TORCH_BATON, build_lock
+directory = Path(sys.argv[1])
+with build_lock(directory):
+    (directory / TORCH_BATON).touch()
+    (directory / "ready").touch()
+    time.sleep(float(sys.argv[2]))
+    os.remove(directory / TORCH_BATON)
+    (directory / "done").touch()
+"""
+
+
+def _start_builder(directory, seconds: float) -> subprocess.Popen:
+    builder = subprocess.Popen([sys.executable, "-c", _BUILDER, str(directory), str(seconds)])
+    deadline = time.monotonic() + 60
+    while not (directory / "ready").exists():
+        assert builder.poll() is None and time.monotonic() < deadline, "the builder did not start"
+        time.sleep(0.02)
+    return builder
+
+
+def test_a_dead_builders_baton_is_cleared(tmp_path):
+    """torch waits forever on the baton a killed builder leaves; the OS lock dies with the builder."""
+    builder = _start_builder(tmp_path, 600)
+    builder.kill()
+    builder.wait()
+    assert (tmp_path / native.TORCH_BATON).exists() and not (tmp_path / "done").exists()
+    with native.build_lock(tmp_path):
+        assert not (tmp_path / native.TORCH_BATON).exists()
+
+
+def test_a_living_builders_baton_is_waited_for(tmp_path):
+    builder = _start_builder(tmp_path, 1.0)
+    with native.build_lock(tmp_path):
+        assert (tmp_path / "done").exists()  # entered only after the builder finished
+    assert builder.wait(timeout=60) == 0
 
 
 def test_sparse_memory_many_small_gaussians():

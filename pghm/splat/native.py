@@ -1,17 +1,21 @@
 """The native splatter: the C++ kernel ``_rasterize.cpp``, built on first use, and its autograd Function.
 
 Readable twin: :mod:`pghm.splat._torch_impl`. The kernel is compiled once per source,
-compiler flags, torch version and CPU into ``cache_dir() / "ext"`` (``$PGHM_CACHE_DIR``);
+compiler flags, torch installation and CPU into ``cache_dir() / "ext"`` (``$PGHM_CACHE_DIR``);
 ``python -m pghm.splat.native`` builds it ahead of time (``scripts/setup.sh`` does), so the
 first render is not slow.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import functools
 import hashlib
+import os
 import platform
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
 
@@ -47,12 +51,40 @@ def _cpu_signature() -> str:
 
 
 def build_directory() -> Path:
-    """Where the kernel is compiled: one directory per source, flags, torch version and CPU."""
+    """Where the kernel is compiled: one directory per source, flags, torch installation and CPU.
+
+    The installation's path is part of the key: torch's build file names its include directories,
+    so two environments sharing one directory would each rebuild the kernel whenever the other
+    had run last."""
     digest = hashlib.sha256()
-    for part in (" ".join(CXX_FLAGS), torch.__version__, _cpu_signature()):
+    for part in (" ".join(CXX_FLAGS), torch.__version__, str(Path(torch.__file__).resolve().parent), _cpu_signature()):
         digest.update(part.encode())
     digest.update(SOURCE.read_bytes())
     return cache_dir() / "ext" / f"splat-{digest.hexdigest()[:16]}"
+
+
+BUILD_LOCK = "pghm.lock"
+"""The file whose OS lock (``flock``) a process holds while it builds or loads the kernel."""
+TORCH_BATON = "lock"
+"""torch's own build lock: a plain file that a builder creates and deletes (``FileBaton``)."""
+
+
+@contextlib.contextmanager
+def build_lock(directory: Path) -> Iterator[None]:
+    """Hold ``directory``'s build lock, and clear a baton that a dead builder left there.
+
+    torch waits, forever, while its baton file exists, and a builder killed mid-compile (a
+    SIGTERM, the OOM killer) never deletes it: every later run would hang without a word. An
+    ``flock`` is released by the kernel when its holder dies, and every pghm builder holds it
+    across torch's build, so a baton found while holding it belongs to no living builder."""
+    with open(directory / BUILD_LOCK, "a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            with contextlib.suppress(FileNotFoundError):
+                os.remove(directory / TORCH_BATON)
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 @functools.cache
@@ -63,13 +95,14 @@ def _build() -> ModuleType | Exception:
     directory = build_directory()
     try:
         directory.mkdir(parents=True, exist_ok=True)
-        return load(
-            name=f"pghm_{directory.name.replace('-', '_')}",
-            sources=[str(SOURCE)],
-            build_directory=str(directory),
-            extra_cflags=list(CXX_FLAGS),
-            extra_ldflags=["-fopenmp"],
-        )
+        with build_lock(directory):
+            return load(
+                name=f"pghm_{directory.name.replace('-', '_')}",
+                sources=[str(SOURCE)],
+                build_directory=str(directory),
+                extra_cflags=list(CXX_FLAGS),
+                extra_ldflags=["-fopenmp"],
+            )
     except Exception as error:  # any build failure (no compiler, ninja, headers) means "use the torch path"
         return error
 
