@@ -77,14 +77,15 @@ def build_lock(directory: Path) -> Iterator[None]:
     SIGTERM, the OOM killer) never deletes it: every later run would hang without a word. An
     ``flock`` is released by the kernel when its holder dies, and every pghm builder holds it
     across torch's build, so a baton found while holding it belongs to no living builder."""
-    with open(directory / BUILD_LOCK, "a") as handle:
+    # Created empty and opened read-only: nothing is ever written to it, only locked.
+    handle = os.open(directory / BUILD_LOCK, os.O_RDONLY | os.O_CREAT, 0o644)
+    try:
         fcntl.flock(handle, fcntl.LOCK_EX)
-        try:
-            with contextlib.suppress(FileNotFoundError):
-                os.remove(directory / TORCH_BATON)
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
+        with contextlib.suppress(FileNotFoundError):
+            os.remove(directory / TORCH_BATON)
+        yield
+    finally:
+        os.close(handle)  # releases the lock
 
 
 @functools.cache
