@@ -9,9 +9,15 @@ so an avatar trained on a GPU opens anywhere.
 
 from __future__ import annotations
 
+import dataclasses
+from typing import TypeVar
+
 import torch
+from torch import Tensor
 
 from pghm.errors import PghmError
+
+T = TypeVar("T")
 
 DEVICE_CHOICES: tuple[str, ...] = ("auto", "cpu", "cuda")
 """Values of ``--device``."""
@@ -38,3 +44,20 @@ def resolve_device(name: str) -> torch.device:
     if device.index is not None and device.index >= torch.cuda.device_count():
         raise PghmError(f"--device {name}: this machine has {torch.cuda.device_count()} CUDA device(s)")
     return device
+
+
+def move(value: T, device: torch.device) -> T:
+    """``value`` with every tensor in it on ``device``: a tensor, or a (nested) dataclass holding tensors.
+
+    A value already there is returned as it is (the same object), so moving to the device a run
+    already computes on costs nothing and changes nothing.
+    """
+    if isinstance(value, Tensor):
+        return value.to(device)
+    if not dataclasses.is_dataclass(value) or isinstance(value, type):
+        return value
+    fields = [field.name for field in dataclasses.fields(value) if field.init]
+    moved = {name: move(getattr(value, name), device) for name in fields}
+    if all(moved[name] is getattr(value, name) for name in fields):
+        return value
+    return dataclasses.replace(value, **moved)

@@ -158,11 +158,12 @@ def track_steps(rotation_sigma: float, visits: float) -> int:
 
 
 def initial_latent(model: PGHM) -> torch.Tensor:
-    """(1, C, L, L): the decoded mean of the bank's latents (a fresh latent for an empty bank)."""
+    """(1, C, L, L) on the model's device: the decoded mean of the bank's latents (a fresh latent
+    for an empty bank)."""
     with torch.no_grad():
         if model.num_identities == 0:
             size = model.config.uv_resolution
-            return torch.zeros(1, model.config.latent_channels, size, size)
+            return torch.zeros(1, model.config.latent_channels, size, size, device=model.identity_bank.device)
         return model.decode_latent(model.identity_bank.mean(0, keepdim=True))
 
 
@@ -185,13 +186,16 @@ def fit(
     out: str | Path,
     config: FitConfig | None = None,
     resume: bool = False,
+    device: torch.device | str = "cpu",
 ) -> Avatar:
     """Personalise ``prior`` to the subject in ``subject_dir`` and save the avatar to ``out``.
 
     Args:
         prior: a prior file or loaded prior; or a :class:`ModelConfig` to train the same
             model from scratch (random network, latent from zero) for comparison.
+        device: where the model, data and optimiser live; the avatar is written from the CPU.
     """
+    device = torch.device(device)
     config = config or FitConfig()
     if config.track_steps is not None and config.track_steps < 0:
         raise PghmError(f"track_steps must be >= 0, got {config.track_steps}")
@@ -225,13 +229,14 @@ def fit(
         if config.uv_resolution not in (None, model.config.uv_resolution):
             model = model.at_resolution(config.uv_resolution)
         prior_source = recorded_path(prior) if not isinstance(prior, Avatar) else "(in memory)"
+    model = model.to(device)
     model.train()
     for p in model.parameters():
         p.requires_grad_(False)
-    geometries = GeometryCache(data, model.config, config.body_model_path)
+    geometries = GeometryCache(data, model.config, config.body_model_path, device)
     latent = nn.Parameter(initial_latent(model))
-    corrections = data.pose_corrections(geometries.body) if config.refine_poses else None
-    lpips, lpips_line = lpips_for(config.lpips)
+    corrections = data.pose_corrections(geometries.body).to(device) if config.refine_poses else None
+    lpips, lpips_line = lpips_for(config.lpips, device)
     objective = AvatarObjective(model, latent, corrections, config.stage1.loss, lpips)
     ckpt = checkpoint_path(out)
     if resume and not ckpt.is_file():

@@ -57,7 +57,7 @@ class LazyAdam(torch.optim.Optimizer):
                 if not state:
                     state["exp_avg"] = torch.zeros_like(p)
                     state["exp_avg_sq"] = torch.zeros_like(p)
-                    state["step"] = torch.zeros(p.shape[0] if group["lazy"] else 1, dtype=torch.float64)
+                    state["step"] = torch.zeros(p.shape[0] if group["lazy"] else 1, dtype=torch.float64, device=p.device)
                 if group["lazy"]:
                     _lazy_update(p, state, group)
                 else:

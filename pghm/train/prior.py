@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import torch
 
 from pghm.body import load_body
+from pghm.device import move
 from pghm.errors import PghmError
 from pghm.io.avatar import Avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig, subject_geometry
@@ -79,17 +80,25 @@ def checkpoint_path(out: Path) -> Path:
 
 
 class GeometryCache:
-    """Each identity's :class:`SubjectGeometry`, built on first use."""
+    """Each identity's :class:`SubjectGeometry` on ``device``, built on first use."""
 
-    def __init__(self, data: TrainingData, config: ModelConfig, body_model_path: str | None) -> None:
+    def __init__(
+        self,
+        data: TrainingData,
+        config: ModelConfig,
+        body_model_path: str | None,
+        device: torch.device | str = "cpu",
+    ) -> None:
         self.body = load_body(data.body_name, body_model_path)
         self.atlas = build_atlas(self.body, config.uv_resolution)
         self.data = data
+        self.device = device
         self._cache: dict[int, SubjectGeometry] = {}
 
     def __call__(self, identity: int) -> SubjectGeometry:
         if identity not in self._cache:
-            self._cache[identity] = subject_geometry(self.body, self.atlas, self.data.shape(identity))
+            geometry = subject_geometry(self.body, self.atlas, self.data.shape(identity))
+            self._cache[identity] = move(geometry, self.device)
         return self._cache[identity]
 
 
@@ -101,38 +110,50 @@ def config_record(config: PriorConfig | FitConfig) -> dict:
     return record
 
 
-def lpips_for(enabled: bool):
-    """(the LPIPS network or None, a status line for the metadata, naming files without their directories)."""
+def lpips_for(enabled: bool, device: torch.device | str = "cpu"):
+    """(the LPIPS network on ``device`` or None, a status line for the metadata, naming files without
+    their directories)."""
     if not enabled:
         return None, "LPIPS off: disabled by configuration"
     network = load_lpips()
     if network is None:
         log.warning("%s; the LPIPS loss term is dropped", lpips_status())
-    return network, lpips_status(directories=False)
+        return None, lpips_status(directories=False)
+    return network.to(device), lpips_status(directories=False)
 
 
 def initial_model(model: ModelConfig, num_identities: int, seed: int) -> PGHM:
     """The prior's network and identity bank before its first step (what step 0 of
-    :func:`train_prior` starts from for ``PriorConfig(model=model, loop=LoopConfig(seed=seed))``)."""
+    :func:`train_prior` starts from for ``PriorConfig(model=model, loop=LoopConfig(seed=seed))``).
+    Drawn on the CPU whatever the device, so a seed gives the same start everywhere."""
     torch.manual_seed(seed)
     return PGHM(model, num_identities=num_identities)
 
 
 def train_prior(
-    data_dir: str | Path, out: str | Path, config: PriorConfig | None = None, resume: bool = False
+    data_dir: str | Path,
+    out: str | Path,
+    config: PriorConfig | None = None,
+    resume: bool = False,
+    device: torch.device | str = "cpu",
 ) -> Avatar:
-    """Train a prior on the subjects in ``data_dir`` and save it to ``out`` (default config: PriorConfig())."""
+    """Train a prior on the subjects in ``data_dir`` and save it to ``out`` (default config: PriorConfig()).
+
+    Computes on ``device``; under torchrun with CUDA, each process on its own GPU
+    (:func:`pghm.train.distributed.process_device`). The file is written from the CPU.
+    """
     config = config or PriorConfig()
     for name in ("network_lr", "latent_lr", "pose_lr"):
         check_learning_rate(name, getattr(config, name))
-    distributed.init()
+    device = distributed.process_device(torch.device(device))
+    distributed.init(device)
     out = Path(out)
     data = TrainingData(data_dir, max_identities=config.max_identities)
     check_step_memory(data, config.loop, "train-prior")
-    geometries = GeometryCache(data, config.model, config.body_model_path)
-    model = initial_model(config.model, data.num_identities, config.loop.seed)
-    corrections = data.pose_corrections(geometries.body) if config.refine_poses else None
-    lpips, lpips_line = lpips_for(config.lpips)
+    geometries = GeometryCache(data, config.model, config.body_model_path, device)
+    model = initial_model(config.model, data.num_identities, config.loop.seed).to(device)
+    corrections = data.pose_corrections(geometries.body).to(device) if config.refine_poses else None
+    lpips, lpips_line = lpips_for(config.lpips, device)
     objective = AvatarObjective(model, None, corrections, config.loop.loss, lpips)
     bank = [model.identity_bank]
     network = [p for name, p in model.named_parameters() if name != "identity_bank"]
