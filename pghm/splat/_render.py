@@ -46,6 +46,8 @@ def _check_gaussians(means: Tensor, scales: Tensor, colors: Tensor, opacities: T
     if not isinstance(means, Tensor) or means.dim() not in (2, 3) or means.shape[-1] != 3:
         got = tuple(means.shape) if isinstance(means, Tensor) else type(means).__name__
         raise PghmError(f"render: means must be an (N, 3) or (B, N, 3) tensor, got {got}")
+    if means.device.type not in ("cpu", "cuda"):
+        raise PghmError(f"render: tensors on {means.device} cannot be splatted; use the CPU or CUDA")
     leading = tuple(means.shape[:-1])
     expected = {"scales": leading, "colors": (*leading, 3), "opacities": leading}
     for name, value in (("means", means), ("scales", scales), ("colors", colors), ("opacities", opacities)):
@@ -91,8 +93,8 @@ def _check_backend(backend: str, device: torch.device, settings: SplatSettings) 
         raise PghmError("render: backend 'gsplat' renders CUDA tensors; these are on the CPU")
     if device.type == "cpu":
         return
-    if device.type != "cuda" or backend in CPU_BACKENDS:
-        raise PghmError(f"render: tensors on {device} render only through gsplat on CUDA (backend 'auto' or 'gsplat')")
+    if backend in CPU_BACKENDS:
+        raise PghmError(f"render: CUDA tensors render through gsplat (backend 'auto' or 'gsplat'), not {backend!r}")
     if not settings.is_exact:
         raise PghmError("render: SplatSettings apply to the CPU splatter; gsplat has its own fixed approximations")
 
