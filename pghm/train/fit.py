@@ -131,6 +131,30 @@ class FitConfig:
     body_model_path: str | None = None
 
 
+GPU_CANDIDATE_RESOLUTION = 256
+"""UV side L of :func:`gpu_fit_candidate`."""
+GPU_CANDIDATE_STEPS = (200, 2000)
+"""Stage 1 and stage 2 steps of :func:`gpu_fit_candidate`."""
+GPU_CANDIDATE_IMAGES = 4
+"""Images per step of :func:`gpu_fit_candidate`."""
+
+
+def gpu_fit_candidate() -> FitConfig:
+    """A fit sized for one GPU and about two minutes, NOT MEASURED: no command uses it by default.
+
+    The CPU defaults (:class:`FitConfig`) stay every command's defaults on every device.
+    ``benchmarks/bench_gpu.py`` fits with this configuration on a CUDA device and scores it
+    against the CPU default fit, with steps per second at L = 128, 256 and 512; until it has
+    run on a GPU these numbers are a guess from the U-Net's step time on one GPU (about 20 ms),
+    not a tuned choice.
+    """
+    config = FitConfig(uv_resolution=GPU_CANDIDATE_RESOLUTION)
+    for name, steps in zip(("stage1", "stage2"), GPU_CANDIDATE_STEPS):
+        stage = replace(getattr(config, name), steps=steps, images_per_shard=GPU_CANDIDATE_IMAGES)
+        setattr(config, name, stage)
+    return config
+
+
 def pose_learning_rate(rotation_sigma: float) -> float:
     """The default learning rate of the pose corrections for poses stated ``rotation_sigma`` (radians) noisy:
 
