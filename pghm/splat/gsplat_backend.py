@@ -3,7 +3,7 @@
 ``gsplat.rasterization`` (gsplat 1.5.3, its 3DGS path) with ``eps2d = COV_DILATION``,
 ``near_plane = NEAR_PLANE``, ``rasterize_mode="classic"``, identity quaternions and the
 isotropic scale on all three axes computes spec steps 1-6 of :mod:`pghm.splat` in float32,
-with four differences of its kernels (docs/splat.md, "GPU (gsplat)", gives their size):
+with these differences of its kernels (docs/splat.md, "GPU (gsplat)", gives their size):
 
 - alpha is clamped to GSPLAT_ALPHA_MAX (0.999), not ALPHA_MAX (0.99): it differs where
   o exp(-d^T Q d / 2) > 0.99, a disc of 0.14 sigma around the centre of an opaque Gaussian;
@@ -12,7 +12,9 @@ with four differences of its kernels (docs/splat.md, "GPU (gsplat)", gives their
 - its footprint is capped at GSPLAT_FOOTPRINT_SIGMAS (3.33) sigma, which cuts nothing for
   opacities up to 1: the exact footprint reaches 3.33 sigma only at opacity 1.003;
 - its frustum clamp in J is (W - cx) / fx + 0.15 W / fx on the right and cx / fx + 0.15 W / fx
-  on the left, the spec's 1.3 W / (2 fx) on both sides only for a centred principal point.
+  on the left, the spec's 1.3 W / (2 fx) on both sides only for a centred principal point;
+- it orders each tile by float32 depth, the spec by float64 (Gaussians closer in depth than
+  float32 resolves may composite in another order).
 
 gsplat is an optional extra (``pip install 'pghm[gpu]'``); it compiles its CUDA kernels on
 first use. Its pure-PyTorch projection runs on the CPU, so the tests hold this mapping to the
