@@ -127,3 +127,21 @@ def test_render_refuses_devices_it_cannot_splat_on():
         render(means, scales, colors, opacities, camera)
     with pytest.raises(PghmError, match="means on cpu; use one device"):
         render(torch.zeros(1, 3), scales, colors, opacities, camera)
+
+
+def test_render_and_export_with_the_cpu_given(tmp_path):
+    """Naming the CPU changes nothing: the same PNG and .ply bytes as the defaults."""
+    from dataclasses import replace
+    from pathlib import Path
+
+    from pghm.io.export import export_posed_ply
+    from pghm.render import RenderJob, render_video
+
+    avatar = Path(__file__).resolve().parent.parent / "assets" / "avatar.pt"
+    job = RenderJob(avatar=avatar, out=tmp_path / "default.png", size=(48, 36), backend="cpu")
+    render_video(job, log=lambda line: None)
+    render_video(replace(job, out=tmp_path / "cpu.png", device="cpu"), log=lambda line: None)
+    assert (tmp_path / "default.png").read_bytes() == (tmp_path / "cpu.png").read_bytes()
+    export_posed_ply(str(avatar), "rest", 0, str(tmp_path / "default.ply"))
+    export_posed_ply(str(avatar), "rest", 0, str(tmp_path / "cpu.ply"), device=CPU)
+    assert (tmp_path / "default.ply").read_bytes() == (tmp_path / "cpu.ply").read_bytes()
