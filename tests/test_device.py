@@ -145,3 +145,18 @@ def test_render_and_export_with_the_cpu_given(tmp_path):
     export_posed_ply(str(avatar), "rest", 0, str(tmp_path / "default.ply"))
     export_posed_ply(str(avatar), "rest", 0, str(tmp_path / "cpu.ply"), device=CPU)
     assert (tmp_path / "default.ply").read_bytes() == (tmp_path / "cpu.ply").read_bytes()
+
+
+def test_optimizer_state_follows_its_parameters():
+    """A checkpoint's optimiser state (saved from any device, read on the CPU) lands on the device
+    of the parameters it resumes: the moments by torch, the lazy rows' step counts by LazyAdam."""
+    from pghm.train.optim import LazyAdam
+
+    saved = torch.nn.Parameter(torch.ones(3, 2))
+    optimizer = LazyAdam([{"params": [saved], "lr": 0.1, "lazy": True}])
+    saved.grad = torch.tensor([[1.0, 0.0], [0.0, 0.0], [0.0, 2.0]])
+    optimizer.step()
+    resumed = LazyAdam([{"params": [torch.nn.Parameter(torch.ones(3, 2, device=META))], "lr": 0.1, "lazy": True}])
+    resumed.load_state_dict(optimizer.state_dict())
+    (state,) = resumed.state.values()
+    assert {state[key].device for key in ("exp_avg", "exp_avg_sq", "step")} == {META}
