@@ -160,7 +160,8 @@ def render_video(job: RenderJob, log: Callable[[str], None] = print) -> RenderSu
     avatar = load_avatar(job.avatar).to(job.device)
     avatar.check_identity(job.identity)
     driver = AvatarDriver(avatar, job.identity, job.body_model_path)
-    motion = open_motion(job.motion, driver.body, driver.geometry.shape, avatar.pose_track) if job.motion else None
+    shape = driver.geometry.shape.cpu()
+    motion = open_motion(job.motion, driver.body, shape, avatar.pose_track) if job.motion else None
     specs = plan_frames(job, motion)
     identity_map = avatar.identity_map(job.identity)
     rest_points = driver.geometry.surface.positions.cpu().numpy()

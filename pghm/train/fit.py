@@ -22,6 +22,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from pghm.device import move
 from pghm.errors import PghmError
 from pghm.io.avatar import Avatar, load_avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig
@@ -332,7 +333,7 @@ def fit(
                 desc="fit: settle poses",
             )
             avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
-        avatar.pose_track = learned_track(corrections, data)
+        avatar.pose_track = move(learned_track(corrections, data), torch.device("cpu"))  # a record, as in the file
     save_avatar(out, avatar)
     ckpt.unlink(missing_ok=True)  # the avatar holds the result; a stale checkpoint would only mislead --resume
     return avatar
