@@ -48,7 +48,7 @@ from pghm.capture.metrics import camera_joints, error_2d_percent, mapped_joints,
 from pghm.capture.pipeline import POSE_NOISE
 from pghm.data.synth.poses import add_pose_noise
 from pghm.io.avatar import Avatar, load_avatar
-from pghm.train import test_poses
+from pghm.train import pose_refine
 from pghm.train.data import PoseCorrections, TrainingData
 from pghm.train.evaluate import on_background, render_images
 from pghm.train.fit import POSE_LR, FitConfig
@@ -218,7 +218,7 @@ def captured(case: Case, reference: Reference, body: BodyModel) -> list[dict]:
     if not np.array_equal(data.images[0], reference.data.images[0]):
         raise SystemExit(f"{case.name}: the captured and reference subjects hold different test images")
     loss = FitConfig().stage2.loss
-    reference_refined = test_poses.refine_poses(
+    reference_refined = pose_refine.refine_poses(
         reference.avatar, reference.data, REFINE_STEPS, loss, POSE_LR, progress=False
     )
     refined_reference_psnr = frame_psnr(reference.avatar, reference.data, reference_refined)
@@ -226,7 +226,7 @@ def captured(case: Case, reference: Reference, body: BodyModel) -> list[dict]:
         "stored": (None, reference.psnr),
         "track": (track_corrections(avatar.pose_track, data, body)[0], reference.psnr),
         "refined": (
-            test_poses.refine_poses(avatar, data, REFINE_STEPS, loss, POSE_LR, progress=False),
+            pose_refine.refine_poses(avatar, data, REFINE_STEPS, loss, POSE_LR, progress=False),
             refined_reference_psnr,
         ),
     }

@@ -26,7 +26,7 @@ from pghm.gl import SpriteRenderer, driver_info, headless_context
 from pghm.gl.context import EGL_PACKAGES
 from pghm.gl.footprint import sprite_extent
 from pghm.gl.sort import BitonicSorter, depth_order
-from pghm.splat._projection import ALPHA_MAX, ALPHA_MIN, COV_DILATION, FRUSTUM_CLAMP, NEAR_PLANE
+from pghm.splat.spec import ALPHA_MAX, ALPHA_MIN, COV_DILATION, FRUSTUM_CLAMP, NEAR_PLANE
 
 MAX_ERROR = 2e-3
 MEAN_ERROR = 1e-4

@@ -35,8 +35,8 @@ OUT_OF_MEMORY_TEXT = ("can't allocate memory", "out of memory", "not enough memo
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from pghm._fault_injection import interrupt_point
     from pghm.cli.options import OneLineParser
-    from pghm.test_hook import interrupt_point
 
     parser = OneLineParser(
         prog="pghm",

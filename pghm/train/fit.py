@@ -9,7 +9,7 @@ optimised together, with per-frame pose corrections when ``refine_poses``; the a
 them as its pose track (:mod:`pghm.train.pose_track`).
 Then, for poses stated noisier than the synthetic data's (a capture) whose frames stage 2 visits
 too rarely, the track is settled: every training frame's correction refined against its image
-with the avatar frozen (:mod:`pghm.train.test_poses`; :func:`track_steps`).
+with the avatar frozen (:mod:`pghm.train.pose_refine`; :func:`track_steps`).
 """
 
 from __future__ import annotations
@@ -41,9 +41,9 @@ from pghm.train.loop import (
 )
 from pghm.train.losses import LossWeights
 from pghm.train.optim import LazyAdam
+from pghm.train.pose_refine import refine_poses
 from pghm.train.pose_track import learned_track
-from pghm.train.prior import GeometryCache, checkpoint_path, config_record, lpips_for
-from pghm.train.test_poses import refine_poses
+from pghm.train.run_setup import GeometryCache, checkpoint_path, config_record, lpips_for
 
 log = logging.getLogger(__name__)
 

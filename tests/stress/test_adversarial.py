@@ -33,11 +33,11 @@ from capture_videos import write_video
 from conftest import SMALL_MODEL, TINY_MODEL
 from stress_kit import ROOT, check, cli, one_error_line
 
+from pghm._fault_injection import TEST_INTERRUPT_VARIABLE
 from pghm.cli.main import build_parser, main
 from pghm.cli.options import Integer, Real, Size
 from pghm.data.subject import npz_bytes
 from pghm.io.avatar import save_avatar
-from pghm.test_hook import TEST_INTERRUPT_VARIABLE
 from viewer.demo import development_avatar
 
 BVH = (ROOT / "tests" / "data" / "two_bone.bvh").read_text()

@@ -32,6 +32,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from pghm._fault_injection import interrupt_point
 from pghm.body import BodyModel, load_body
 from pghm.data.subject import SubjectArrays, write_dataset_meta, write_image, write_subject
 from pghm.data.synth import cameras as rigs
@@ -44,7 +45,6 @@ from pghm.data.synth.regions import Landmarks
 from pghm.data.synth.render import Lighting, MeshRenderer, RenderedView
 from pghm.errors import PghmError
 from pghm.io.outputs import staged_folder
-from pghm.test_hook import interrupt_point
 
 GENERATOR_VERSION = "1.1"
 """Bumped whenever the same config and seed would give different bytes."""
