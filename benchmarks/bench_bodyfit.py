@@ -26,7 +26,8 @@ import numpy as np
 from common import load_average, print_table, write_json
 
 from pghm.body import load_body
-from pghm.capture.bodyfit import BodyFitConfig, fit_body
+from pghm.capture.bodyfit import fit_body
+from pghm.capture.config import BodyFitConfig
 from pghm.capture.frontend import Observations
 from pghm.capture.landmarks import NUM_LANDMARKS
 from pghm.capture.metrics import camera_joints, error_2d_percent, mpjpe, pa_mpjpe, project

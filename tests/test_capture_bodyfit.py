@@ -17,8 +17,8 @@ import torch
 from scipy.ndimage import binary_closing, binary_fill_holes
 
 from pghm.body import BodyPose, load_body
-from pghm.capture.bodyfit import HEIGHT_PHENOTYPE, BodyFitConfig, fit_body, rest_height, shape_of_height
-from pghm.capture.config import HEIGHT_RANGE_M, CaptureConfig
+from pghm.capture.bodyfit import HEIGHT_PHENOTYPE, fit_body, rest_height, shape_of_height
+from pghm.capture.config import HEIGHT_RANGE_M, BodyFitConfig, CaptureConfig
 from pghm.capture.frontend import Observations
 from pghm.capture.landmarks import BODY_LANDMARKS, NUM_LANDMARKS, landmark_points
 from pghm.capture.metrics import camera_joints, error_2d_percent, mpjpe, pa_mpjpe, project

@@ -100,7 +100,7 @@ def test_without_mediapipe_says_how_to_install(tmp_path, capsys, monkeypatch):
 
 
 def small_fit():
-    from pghm.capture.bodyfit import BodyFitConfig
+    from pghm.capture.config import BodyFitConfig
 
     return BodyFitConfig(steps=(2, 2, 2))  # the writer is under test here, not the fit's accuracy
 

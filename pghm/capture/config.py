@@ -1,8 +1,8 @@
 """The configuration of ``pghm capture``: one dataclass, every option of the command.
 
-The body fit's own settings (:class:`pghm.capture.bodyfit.BodyFitConfig`) nest inside as
-``body``; ``None`` takes its defaults. The body fit is imported only when the pipeline
-reaches it, so that reading the video and finding the person (and every bad-input error
+The body fit's own settings (:class:`BodyFitConfig`) nest inside as ``body``; ``None``
+takes its defaults. The body fit (:mod:`pghm.capture.bodyfit`) is imported only when the
+pipeline reaches it, so that reading the video and finding the person (and every bad-input error
 they raise) do not wait for torch and the body model to load.
 """
 
@@ -11,15 +11,11 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pghm.errors import PghmError
 from pghm.io.avatar import recorded_path
-
-if TYPE_CHECKING:
-    from pghm.capture.bodyfit import BodyFitConfig
 
 MIN_FRAMES = 8
 """Fewest frames with the person found that make a subject: with the default
@@ -54,6 +50,109 @@ HEIGHT_RANGE_M = (1.12, 2.13)
 DEFAULT_CROP_MARGIN = 0.1
 """Margin added on each side of the region the person occupies, as a fraction of that
 region's longest side (room for a hand the segmentation clipped)."""
+
+
+@dataclass(frozen=True)
+class BodyFitConfig:
+    """Options of the body fit (:func:`pghm.capture.bodyfit.fit_body`)."""
+
+    body: str = "anny"
+    """Body model backend (only Anny's landmark correspondence is measured)."""
+
+    default_fov_deg: float = 60.0
+    """Field of view over the image's longer side assumed when the intrinsics are unknown
+    (a phone's main camera is 60-70 degrees); the fit refines it."""
+
+    fit_focal: bool = True
+    """Refine the focal length when the intrinsics are unknown."""
+
+    steps: tuple[int, int, int] = (60, 200, 300)
+    """Adam steps of the three stages (camera/root, pose, shape + silhouette). The silhouette
+    stage sees ``silhouette_frames`` frames a step, so each frame of a 100-frame video is
+    aligned to its mask about 100 times."""
+
+    learning_rate: float = 0.03
+    """Adam step for rotations (radians) and the shape logits; translation uses a tenth."""
+
+    min_confidence: float = 0.3
+    """Landmarks below this confidence are ignored."""
+
+    robust_sigma: float = 0.06
+    """Geman-McClure scale of the 2D terms, as a fraction of the person's height."""
+
+    weight_2d: float = 1.0
+    weight_3d: float = 0.5
+    huber_3d_m: float = 0.05
+    weight_outside: float = 30.0
+    weight_coverage: float = 10.0
+    weight_smooth: float = 50.0
+    weight_pose: float = 0.002
+    weight_motion_prior: float = 0.2
+    motion_prior_scale: float = 20.0
+    """The pose prior learned from motion capture (:mod:`pghm.capture.pose_prior`): its weight, and
+    the squared Mahalanobis distance c at which its robust penalty saturates (0 weight: off).
+    Measured on capture-bench's walks (seeds 0-2, front end cached): PA-MPJPE 47.3 -> 38.3 mm on
+    plain backgrounds and 56.2 -> 47.2 over photographs; a plain Gaussian (no saturation) gains
+    as much on walks but triples the error of a video of arm raises, which the clips never show
+    (36.6 -> 116 mm); saturating at c = 20 keeps it at 35.5 (docs/capture.md)."""
+    weight_limits: float = 1.0
+    weight_focal: float = 0.1
+    weight_shape: float = 1.0
+    """Weights of the objective's terms (module docstring); weight_focal pulls log f to the
+    default, weight_shape the phenotypes to Anny's average (MediaPipe's landmarks over
+    clothes hardly tell the shape: without it the walker of the mono preset's seed 4 came
+    out far heavier, weight 0.85 for a true 0.38, at the same joint error). weight_3d is
+    low because MediaPipe's world landmarks are 10-30 cm off at the wrists and feet (in
+    depth above all) where its 2D landmarks are 2-3 % of the height off: on capture-bench's
+    48-frame videos 2 -> 0.5 took the 2D error from 1.82 to 1.74 % (plain) and 2.55 to
+    2.41 % (photographs), PA-MPJPE from 60.4 to 58.7 mm over photographs; 0.25 or 6 did
+    not do better. The mask terms are strong (30 and 10, from 1 and 0.3) so that the body's
+    outline, not the landmarks' bias, places it: on capture-bench's seed 0-1 videos (front end
+    cached) the body mesh's silhouette IoU against the true masks rose by 0.02-0.03 and the 2D
+    error fell by 0.1-0.2 % of the height; 300 and 100 did no better (docs/capture.md).
+    weight_smooth 100 -> 50 (with the front end's mirrored pass, 100-frame videos, seeds 0-2):
+    MPJPE / PA-MPJPE / 2D 75.6 / 49.1 / 1.70 % -> 74.7 / 47.5 / 1.57 % (plain), 83.8 / 57.3 /
+    2.10 % -> 83.3 / 56.4 / 2.01 % (photographs); 25 or 300 did worse: the gait's fast leg
+    swings are real accelerations."""
+
+    silhouette_vertices: int = 1000
+    """Mesh vertices (an even subsample) tested against the mask."""
+
+    coverage_samples: int = 128
+    """Mask pixels per frame that the body should cover."""
+
+    silhouette_frames: int = 32
+    """Frames (drawn at random each step) on which the mask terms are evaluated: the shape
+    they mostly inform is shared, and their cost stays independent of the video's length."""
+
+    mask_size: int = 128
+    """Longest side (pixels) at which the masks are compared."""
+
+    repair_swaps: bool = True
+    """Undo MediaPipe's left/right label swaps (the whole body mirrored, legs or arms traded)
+    found over time (:mod:`pghm.capture.swaps`) before fitting."""
+
+    seed: int = 0
+    """Random subsampling of vertices and mask pixels."""
+
+    height_m: float | None = None
+    """The person's height in metres when known (``pghm capture --height``): the shape starts, and
+    the shape prior pulls, at Anny's average body with its height phenotype set to it
+    (:func:`pghm.capture.bodyfit.shape_of_height`), and the shape stage holds the rest body's height to it (the term
+    ``weight_height ((h(s) - height_m) / HEIGHT_SCALE_M)^2``, h the crown-to-sole extent). One
+    uncalibrated video does not tell a person's size: without it every walker of capture-bench,
+    1.68-1.89 m tall, was fitted 1.60-1.62 m (docs/capture.md)."""
+    weight_height: float = 1.0
+    """Weight of the height term (untuned: at 1 the fitted height is the given one to the millimetre)."""
+
+    def validate(self) -> BodyFitConfig:
+        if self.body != "anny":
+            raise PghmError(f"body fit: only the anny body has a measured landmark correspondence, got {self.body!r}")
+        if not 10.0 <= self.default_fov_deg <= 150.0:
+            raise PghmError(f"body fit: default_fov_deg must be 10 to 150 degrees, got {self.default_fov_deg}")
+        if len(self.steps) != 3 or min(self.steps) < 0:
+            raise PghmError(f"body fit: steps must be three non-negative counts, got {self.steps}")
+        return self
 
 
 @dataclass

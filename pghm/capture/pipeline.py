@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pghm.capture.config import CaptureConfig
+from pghm.capture.config import BodyFitConfig, CaptureConfig
 from pghm.capture.crop import (
     Region,
     crop_intrinsics,
@@ -318,7 +318,7 @@ def _write(folder: Path, config: CaptureConfig, front: FrontEnd) -> None:
     """Fit the body and write the subject's arrays and meta.json into ``folder`` (images are already there)."""
     import pghm
     from pghm.body import load_body
-    from pghm.capture.bodyfit import BodyFitConfig, fit_body
+    from pghm.capture.bodyfit import fit_body
 
     observations = front.observations
     body_config = config.body or BodyFitConfig()

@@ -7,7 +7,7 @@ without an avatar of the person is that close. The polish makes one: it personal
 *every* frame of the capture (:func:`pghm.train.fit.fit` on :data:`~pghm.data.subject.ALL_SPLIT`,
 stage 2 correcting each frame's pose), settles the correction of each frame outside the training
 split against the finished avatar for :data:`POLISH_TRACK_STEPS` steps
-(:func:`pghm.train.test_poses.refine_poses`), and stores, for those held-out frames f,
+(:func:`pghm.train.pose_refine.refine_poses`), and stores, for those held-out frames f,
 
     rotations'[f, bones] = rotations[f, bones] + delta_r[f],    translation'[f] = translation[f] + delta_t[f]
 
@@ -39,8 +39,8 @@ from pghm.io.avatar import Avatar, recorded_path
 from pghm.model import ModelConfig
 from pghm.train.data import TrainingData
 from pghm.train.fit import POSE_LR, TRACK_STEPS, FitConfig, fit
+from pghm.train.pose_refine import refine_poses
 from pghm.train.pose_track import track_corrections
-from pghm.train.test_poses import refine_poses
 
 POLISH_TRACK_STEPS = TRACK_STEPS
 """Steps of each held-out frame's pose refinement against the finished avatar, as ``pghm fit``
