@@ -31,9 +31,9 @@ from pghm.capture.config import BodyFitConfig
 from pghm.capture.frontend import Observations
 from pghm.capture.landmarks import NUM_LANDMARKS
 from pghm.capture.metrics import camera_joints, error_2d_percent, mpjpe, pa_mpjpe, project
-from pghm.data.subject import Subject, image_name, read_mask, read_rgb
-from pghm.data.synth.config import PRESETS
-from pghm.data.synth.generate import generate
+from pghm.subject import Subject, image_name, read_mask, read_rgb
+from pghm.synth.config import PRESETS
+from pghm.synth.generate import generate
 
 
 def detect(folder: Path, indices: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

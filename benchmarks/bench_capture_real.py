@@ -50,7 +50,7 @@ from PIL import Image
 
 from pghm.capture.crop import to_region
 from pghm.capture.video import REFERENCE_WHITE_NITS
-from pghm.data.subject import Subject, check, image_name, read_mask, read_rgb
+from pghm.subject import Subject, check, image_name, read_mask, read_rgb
 
 REAL_VIDEO = Path("shared") / "data" / "video" / "outdoor_dribble_40f.mp4"
 """The real phone video, in a ``shared/`` folder beside the repository (or beside a parent of it)."""

@@ -105,7 +105,7 @@ class Runs:
 def bent_frames(subject: Path) -> list[int]:
     """Novel-pose test images with an elbow or knee flexed beyond BENT_DEGREES."""
     from pghm.body import load_body
-    from pghm.data.subject import Subject
+    from pghm.subject import Subject
 
     data = Subject.open(subject)
     body = load_body(data.arrays.body)

@@ -8,7 +8,7 @@ fitted with the true poses and cameras, so their appearance is the best a fit of
 gives):
 
 1. Sweep. Each held-out frame's true pose gets the synthetic generator's estimator noise
-   (:func:`pghm.data.synth.poses.add_pose_noise`: every canonical joint's rotation composed
+   (:func:`pghm.synth.poses.add_pose_noise`: every canonical joint's rotation composed
    with a random rotation of N(0, sigma_r^2) axis-angle components, the root translation
    N(0, sigma_t^2) per axis), sigma_r / sigma_t in the capture's own ratio (9.5 degrees, 5 cm)
    at several fractions of it, a few draws each. Per level: the PSNR drop against the same
@@ -46,8 +46,8 @@ from common import DOCS, load_average, print_table, setup_threads, write_json
 from pghm.body import BodyModel, load_body
 from pghm.capture.metrics import camera_joints, error_2d_percent, mapped_joints, mpjpe, pa_mpjpe, project
 from pghm.capture.pipeline import POSE_NOISE
-from pghm.data.synth.poses import add_pose_noise
 from pghm.io.avatar import Avatar, load_avatar
+from pghm.synth.poses import add_pose_noise
 from pghm.train import pose_refine
 from pghm.train.data import PoseCorrections, TrainingData
 from pghm.train.evaluate import on_background, render_images

@@ -31,10 +31,10 @@ from pathlib import Path
 
 from common import DOCS, load_average, print_table, setup_threads, write_json
 
-from pghm.data.synth.config import PRESETS
-from pghm.data.synth.generate import generate
 from pghm.io.avatar import avatar_geometry
 from pghm.model import ModelConfig
+from pghm.synth.config import PRESETS
+from pghm.synth.generate import generate
 from pghm.train.evaluate import evaluate
 from pghm.train.fit import FitConfig, fit
 

@@ -24,8 +24,8 @@ import numpy as np
 from common import DOCS, setup_threads
 from PIL import Image, ImageDraw
 
-from pghm.data.subject import Subject
 from pghm.io.avatar import Avatar, load_avatar, recorded_path
+from pghm.subject import Subject
 from pghm.train.evaluate import STRIP_FRAMES, evaluate
 
 TRAIN_STRIDE = 5

@@ -11,7 +11,7 @@ KeyboardInterrupt is raised right there. Unset (always, outside tests) it does n
 
 Points: ``startup`` (pghm.cli.main, before the subcommand modules and torch are imported),
 ``render-frame`` (pghm.render.job, after the first frame is written), ``synth-subjects``
-(pghm.data.synth.generate, after the images are rendered, before the subjects' files are
+(pghm.synth.generate, after the images are rendered, before the subjects' files are
 written). tests/stress/test_adversarial.py uses each.
 
 **A pause inside a save, for kill -9 tests.** With ``PGHM_TEST_PAUSE_SAVE="POINT:N:NAME"`` and

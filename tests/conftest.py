@@ -35,8 +35,8 @@ def atlas128(body):
 @pytest.fixture(scope="session")
 def tiny_dataset(tmp_path_factory):
     """2 synthetic subjects x 2 views x 3 frames at 64 px, rendered once per session."""
-    from pghm.data.synth.config import PRESETS
-    from pghm.data.synth.generate import generate
+    from pghm.synth.config import PRESETS
+    from pghm.synth.generate import generate
 
     out = tmp_path_factory.mktemp("data") / "tiny"
     generate(PRESETS["tiny"], seed=0, out=out, workers=1, progress=False)

@@ -110,7 +110,7 @@ def test_capture_writes_a_subject_that_data_check_accepts(tmp_path):
     import json
 
     from pghm.capture import CaptureConfig, capture
-    from pghm.data.subject import Subject, check
+    from pghm.subject import Subject, check
 
     frames = real_frames(10)
     frames[4] = 128  # one frame without the person

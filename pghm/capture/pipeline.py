@@ -42,9 +42,9 @@ from pghm.capture.frontend import (
     track_person,
 )
 from pghm.capture.video import ImageFolder, VideoFile, open_source, scaled_size
-from pghm.data.subject import SubjectArrays, write_image, write_subject
 from pghm.errors import PghmError, listed
 from pghm.io.outputs import check_output, staged_folder
+from pghm.subject import SubjectArrays, write_image, write_subject
 
 TRACKING_SIZE = 512
 """Longest side of the frames the person is tracked on (pass 1), pixels."""

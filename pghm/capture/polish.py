@@ -4,7 +4,7 @@ The body fit places the body from landmarks and masks to 1.1-1.6 % of the person
 (bench_capture's c), while an avatar's held-out frame rendered 0.27 % (under a pixel) off the pose
 it learned already loses 1.5 dB (``benchmarks/bench_pose_error.py``): no estimator that reads a frame
 without an avatar of the person is that close. The polish makes one: it personalises a prior on
-*every* frame of the capture (:func:`pghm.train.fit.fit` on :data:`~pghm.data.subject.ALL_SPLIT`,
+*every* frame of the capture (:func:`pghm.train.fit.fit` on :data:`~pghm.subject.ALL_SPLIT`,
 stage 2 correcting each frame's pose), settles the correction of each frame outside the training
 split against the finished avatar for :data:`POLISH_TRACK_STEPS` steps
 (:func:`pghm.train.pose_refine.refine_poses`), and stores, for those held-out frames f,
@@ -34,9 +34,9 @@ from pathlib import Path
 import numpy as np
 
 from pghm.body import load_body
-from pghm.data.subject import ALL_SPLIT, Subject, write_subject
 from pghm.io.avatar import Avatar, recorded_path
 from pghm.model import ModelConfig
+from pghm.subject import ALL_SPLIT, Subject, write_subject
 from pghm.train.data import TrainingData
 from pghm.train.fit import POSE_LR, TRACK_STEPS, FitConfig, fit
 from pghm.train.pose_refine import refine_poses

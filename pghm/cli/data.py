@@ -12,9 +12,9 @@ import argparse
 import sys
 
 from pghm.cli.options import Integer
-from pghm.data.subject import check, count_images
 from pghm.errors import EXIT_USER_ERROR
 from pghm.io.outputs import check_output
+from pghm.subject import check, count_images
 
 MIN_TILE, MAX_TILE = 16, 2048
 """Contact-sheet tile sides accepted, in pixels."""
@@ -33,7 +33,7 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _sheet(args: argparse.Namespace) -> int:
-    from pghm.data.synth.sheet import contact_sheet
+    from pghm.synth.sheet import contact_sheet
 
     check_output(args.out, inputs=[args.dir, args.mono])
     sheet = contact_sheet(args.dir, args.out, tile=args.tile, mono_dir=args.mono)

@@ -8,9 +8,9 @@ from __future__ import annotations
 import argparse
 
 from pghm.cli.options import INDEX, Integer
-from pghm.data.motion import MAX_FRAMES
 from pghm.io.export import FRONT_DISTANCE, export_posed_ply
 from pghm.io.outputs import check_output
+from pghm.motion.motion import MAX_FRAMES
 
 
 def register(subparsers) -> None:

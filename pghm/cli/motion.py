@@ -18,13 +18,13 @@ import numpy as np
 
 from pghm.body import BODY_NAMES, BodyModel, RestBody, load_body
 from pghm.cli.options import Integer, Real
-from pghm.data.bvh import load_bvh
-from pghm.data.motion import MAX_FPS, MIN_FPS, Motion
-from pghm.data.procedural import MAX_PROCEDURAL_FRAMES, PROCEDURAL_MOTIONS, procedural_motion
-from pghm.data.retarget import RIG_MAPS, UNIT_SCALES, clip_facing, detect_rig, import_bvh, leg_length, retarget_bvh
 from pghm.errors import MotionFileError
 from pghm.io.atomic import save_figure
 from pghm.io.outputs import check_output
+from pghm.motion.bvh import load_bvh
+from pghm.motion.motion import MAX_FPS, MIN_FPS, Motion
+from pghm.motion.procedural import MAX_PROCEDURAL_FRAMES, PROCEDURAL_MOTIONS, procedural_motion
+from pghm.motion.retarget import RIG_MAPS, UNIT_SCALES, clip_facing, detect_rig, import_bvh, leg_length, retarget_bvh
 
 PREVIEW_VERTEX_STRIDE = 4
 """Plot every 4th vertex: enough points to read a pose, few enough to draw quickly."""

@@ -13,8 +13,8 @@ import sys
 from pathlib import Path
 
 from pghm.cli.options import INDEX, Integer, Real, Size
-from pghm.data.motion import MAX_FPS, MIN_FPS
 from pghm.errors import PghmError
+from pghm.motion.motion import MAX_FPS, MIN_FPS
 from pghm.render import DEFAULT_FPS, DEFAULT_SIZE, MAX_RENDER_FRAMES, RenderJob, render_video
 
 MAX_SECONDS = 1e6

@@ -10,9 +10,9 @@ from __future__ import annotations
 import argparse
 
 from pghm.cli.options import SEED, Integer
-from pghm.data.synth.config import PRESETS, load_config
-from pghm.data.synth.generate import generate
 from pghm.io.outputs import check_output
+from pghm.synth.config import PRESETS, load_config
+from pghm.synth.generate import generate
 
 MAX_WORKERS = 64
 """Most render processes (each holds a GL context and a body model)."""

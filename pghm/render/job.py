@@ -145,8 +145,8 @@ def render_video(job: RenderJob, log: Callable[[str], None] = print) -> RenderSu
     Raises :class:`~pghm.errors.PghmError` (one line) for a bad avatar or motion file, a
     missing EGL (use ``backend="cpu"``) or bad options.
     """
-    from pghm.data.open_motion import open_motion
     from pghm.io.avatar import load_avatar
+    from pghm.motion.open_motion import open_motion
 
     width, height = job.size
     if width < 1 or height < 1 or width * height > MAX_RENDER_PIXELS:

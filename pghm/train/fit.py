@@ -125,7 +125,7 @@ class FitConfig:
     (:meth:`PGHM.at_resolution`): (L / L_prior)^2 times as many Gaussians, finer detail, longer
     fits and slower viewing (docs/training.md, "Resolution, steps and image size")."""
     split: str = "train"
-    """The subject's split the avatar is fitted on (:data:`pghm.data.subject.ALL_SPLIT`: every
+    """The subject's split the avatar is fitted on (:data:`pghm.subject.ALL_SPLIT`: every
     image, as ``pghm capture --polish`` does to align the held-out frames' poses)."""
     lpips: bool = True
     body_model_path: str | None = None

@@ -227,10 +227,10 @@ def output_versions(version: int) -> dict[str, tuple[callable, callable]]:
     from PIL import Image
 
     from pghm.body import load_body
-    from pghm.data.motion import Motion
     from pghm.io.avatar import load_avatar, save_avatar
     from pghm.io.ply import read_ply, write_ply
     from pghm.model import ModelConfig
+    from pghm.motion.motion import Motion
     from pghm.render import PngFileSink
     from viewer.demo import development_avatar
 

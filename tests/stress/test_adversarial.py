@@ -36,8 +36,8 @@ from stress_kit import ROOT, check, cli, one_error_line
 from pghm._fault_injection import TEST_INTERRUPT_VARIABLE
 from pghm.cli.main import build_parser, main
 from pghm.cli.options import Integer, Real, Size
-from pghm.data.subject import npz_bytes
 from pghm.io.avatar import save_avatar
+from pghm.subject import npz_bytes
 from viewer.demo import development_avatar
 
 BVH = (ROOT / "tests" / "data" / "two_bone.bvh").read_text()
@@ -62,7 +62,7 @@ TINY_RUN = {
 def world(tmp_path_factory, tiny_dataset):
     """Inputs every command can use: an avatar, a prior-shaped file, a motion, a BVH, a subject."""
     from pghm.body import load_body
-    from pghm.data.motion import Motion
+    from pghm.motion.motion import Motion
 
     root = tmp_path_factory.mktemp("adversarial_inputs")
     avatar = development_avatar(SMALL_MODEL, seed=3)

@@ -120,13 +120,13 @@ def _writers(tmp: Path, tiny_dataset: Path) -> dict[str, tuple[callable, list[Pa
     """Writer name -> (run it into ``tmp``, the files it must produce)."""
     from benchmarks.splat_measure import write_json
     from pghm.body import load_body
-    from pghm.data.motion import Motion
-    from pghm.data.subject import Subject, write_dataset_meta, write_image, write_subject
-    from pghm.data.synth.sheet import contact_sheet
     from pghm.io.atomic import save_figure
     from pghm.io.avatar import save_avatar
     from pghm.io.ply import write_ply
+    from pghm.motion.motion import Motion
     from pghm.render import PngFileSink, PngSequenceSink
+    from pghm.subject import Subject, write_dataset_meta, write_image, write_subject
+    from pghm.synth.sheet import contact_sheet
     from pghm.train.evaluate import evaluate
     from pghm.train.loop import LoopState, save_checkpoint
     from viewer.demo import development_avatar
@@ -286,7 +286,7 @@ IN_MEMORY = {"buffer", "member", "file"}
 ATOMIC_BY_CONSTRUCTION = {
     ("pghm/cli/motion.py", "motion.save"),  # Motion.save: atomic_write_bytes (checked above)
     ("pghm/render/sinks.py", "imageio_ffmpeg.write_frames"),  # into a PendingFile's temporary path
-    ("pghm/data/synth/video.py", "imageio_ffmpeg.write_frames"),  # into atomic_path's temporary path
+    ("pghm/synth/video.py", "imageio_ffmpeg.write_frames"),  # into atomic_path's temporary path
 }
 
 
