@@ -75,7 +75,7 @@ BENCHMARKS: dict[str, Callable[[argparse.Namespace], int]] = {"splat": _splat, "
 """Benchmark name -> function of the parsed arguments returning an exit status."""
 
 
-def _run(args: argparse.Namespace) -> int:
+def cmd_bench(args: argparse.Namespace) -> int:
     if args.name not in BENCHMARKS:
         raise PghmError(f"unknown benchmark '{args.name}', expected one of {', '.join(sorted(BENCHMARKS))}")
     return BENCHMARKS[args.name](args)
@@ -109,4 +109,4 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=30.0,
         help="stress: time budget of the loader fuzzer (default 30)",
     )
-    parser.set_defaults(func=_run)
+    parser.set_defaults(func=cmd_bench)

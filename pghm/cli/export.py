@@ -32,10 +32,10 @@ def register(subparsers) -> None:
     )
     parser.add_argument("--identity", type=INDEX, default=0, help="identity of a prior's bank (default %(default)s)")
     parser.add_argument("--body-model-path", default=None)
-    parser.set_defaults(func=run)
+    parser.set_defaults(func=cmd_export)
 
 
-def run(args: argparse.Namespace) -> int:
+def cmd_export(args: argparse.Namespace) -> int:
     check_output(args.out, inputs=[args.avatar, args.pose])
     count = export_posed_ply(
         args.avatar, args.pose, args.frame, args.out, args.view, args.identity, args.body_model_path

@@ -88,10 +88,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--no-follow", action="store_true", help="keep the camera still when the body moves")
     parser.add_argument("--body-model-path", help="the SMPL-X model file, for SMPL-X avatars")
-    parser.set_defaults(func=run_render)
+    parser.set_defaults(func=cmd_render)
 
 
-def run_render(args: argparse.Namespace) -> int:
+def cmd_render(args: argparse.Namespace) -> int:
     job = RenderJob(
         avatar=args.avatar,
         out=args.out,

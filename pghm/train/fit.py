@@ -244,7 +244,16 @@ def fit(
     if start_stage == 1:
         state1 = restore(payload, objective, stage1_opt) if payload else LoopState()
         state1 = run_stage(
-            objective, [latent], stage1_opt, data, geometries, config.stage1, ckpt, state1, {"stage": 1}, "fit 1/2"
+            objective=objective,
+            trainable=[latent],
+            optimizer=stage1_opt,
+            data=data,
+            geometry_of=geometries,
+            config=config.stage1,
+            checkpoint=ckpt,
+            state=state1,
+            extra={"stage": 1},
+            description="fit 1/2",
         )
 
     network = network_parameters(model)
@@ -260,7 +269,16 @@ def fit(
     objective.weights = config.stage2.loss
     trainable = [p for g in groups for p in g["params"]]
     state2 = run_stage(
-        objective, trainable, stage2_opt, data, geometries, config.stage2, ckpt, state2, {"stage": 2}, "fit 2/2"
+        objective=objective,
+        trainable=trainable,
+        optimizer=stage2_opt,
+        data=data,
+        geometry_of=geometries,
+        config=config.stage2,
+        checkpoint=ckpt,
+        state=state2,
+        extra={"stage": 2},
+        description="fit 2/2",
     )
 
     avatar = Avatar(

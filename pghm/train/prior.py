@@ -110,7 +110,16 @@ def train_prior(
         state = restore(load_checkpoint(ckpt), objective, optimizer)
         log.info("resuming from %s at step %d", ckpt, state.step)
     state = run_stage(
-        objective, trainable, optimizer, data, geometries, config.loop, ckpt, state, {"kind": "prior"}, "prior"
+        objective=objective,
+        trainable=trainable,
+        optimizer=optimizer,
+        data=data,
+        geometry_of=geometries,
+        config=config.loop,
+        checkpoint=ckpt,
+        state=state,
+        extra={"kind": "prior"},
+        description="prior",
     )
     shapes = torch.stack([data.shape(i) for i in range(data.num_identities)])
     avatar = Avatar(
