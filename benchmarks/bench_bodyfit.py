@@ -4,7 +4,8 @@ Renders (or reuses) a ``pghm synth --config mono`` subject, runs MediaPipe Pose
 (``model_complexity=1``, video mode) on its training frames, gives :func:`fit_body` the
 detections with the true masks (the front end's segmentation is measured by
 bench_capture), and compares the fitted canonical joints with the generator's exact poses
-in each frame's camera coordinates (issue 22, targets b, c and e):
+in each frame's camera coordinates, against the capture's targets b, c and e (docs/capture.md,
+"How well it works"):
 
 - root-relative MPJPE <= 80 mm and PA-MPJPE <= 50 mm;
 - 2D error of the canonical joints <= 2 % of the person's height;

@@ -1,4 +1,4 @@
-"""``pghm capture`` against the synthetic generator's truth (issue 22, "How it is measured").
+"""``pghm capture`` against the synthetic generator's truth (docs/capture.md, "How well it works").
 
 Synthetic monocular walks (:mod:`pghm.synth.video`) are encoded as H.264 videos with
 the person over two kinds of background, captured with ``pghm capture`` (defaults: the

@@ -1,4 +1,4 @@
-"""The paper's claims, measured at CPU scale on synthetic data (issue 6).
+"""The paper's claims, measured at CPU scale on synthetic data.
 
 1. Prior + personalisation vs training the same model from scratch on the same monocular
    subject: held-out novel-pose PSNR/SSIM of the prior fitted for K steps, of scratch for K

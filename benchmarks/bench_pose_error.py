@@ -22,7 +22,7 @@ gives):
 
 The curve says how small a held-out frame's pose error must be for d's 1.5 dB, whatever made
 the pose: where it crosses 1.5 dB, against c's 2 % and the 36-55 mm PA-MPJPE that published
-monocular regressors report on 3DPW (issue 22's own figures).
+monocular regressors report on 3DPW.
 
     python benchmarks/bench_pose_error.py --keep DIR/s0 DIR/s1 DIR/s2 [--levels 0.05 0.1 ...] [--draws 3]
 
@@ -65,7 +65,7 @@ REFINE_STEPS = 30
 GAP_TARGET_DB = 1.5
 REPROJ_TARGET_PCT = 2.0
 PUBLISHED_PA_MPJPE_MM = (36.0, 55.0)
-"""PA-MPJPE of published monocular regressors on 3DPW (issue 22's figures)."""
+"""PA-MPJPE of published monocular regressors on 3DPW."""
 WHITE = (1.0, 1.0, 1.0)
 ERRORS = ("reproj_pct", "pa_mpjpe_mm", "mpjpe_mm")
 """The joint errors reported: 2D % of the person's height, PA-MPJPE and MPJPE in mm."""

@@ -1,4 +1,4 @@
-"""Fit quality against cost: UV resolution L x fitting steps x training image size (issue 23, item 3).
+"""Fit quality against cost: UV resolution L x fitting steps x training image size.
 
 For every (L, steps, image scale): fit the monocular subject with the default ``pghm fit``
 configuration at that budget (stage 1 a tenth of the steps, as the default), then score the

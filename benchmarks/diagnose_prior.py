@@ -1,4 +1,4 @@
-"""Whether a prior can help (issue 6): how well a prior fits the people it was trained on,
+"""Whether a prior can help: how well a prior fits the people it was trained on,
 and where personalised avatars gain or lose on the held-out subject.
 
 1. The prior on its own training identities: PSNR of every identity's decoded map on its

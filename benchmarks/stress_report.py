@@ -12,7 +12,6 @@ and the ``test`` extra (pytest, hypothesis).
 
 from __future__ import annotations
 
-import datetime
 import importlib.util
 import json
 import os
@@ -101,7 +100,7 @@ def format_report(rows: list[dict], fuzz: dict | None, suite_status: int, second
     lines = [
         "# Stress and bad-input report",
         "",
-        f"Written by `pghm bench stress` on {datetime.date.today().isoformat()} ({platform.machine()}, "
+        f"Written by `pghm bench stress` ({platform.machine()}, "
         f"Python {platform.python_version()}, load average {os.getloadavg()[0]:.1f}); do not edit: rerun it. "
         "Each row is one case of the stress suite (`tests/stress`), recorded by the test that ran it: "
         "the input tried, what the spec or the error contract (pghm/errors.py: one line, exit status 2) "

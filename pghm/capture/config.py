@@ -34,14 +34,9 @@ DEFAULT_TEST_EVERY = 8
 """Every this-many-th kept frame goes to the test split."""
 
 DEFAULT_TARGET_FRAMES = 100
-"""Frames a longer video is thinned to when ``--every`` is not given: it is read one frame in
-floor(F / 100), keeping 100 to 199 (the rule nerfstudio's ``ns-process-data video`` uses, with its
-own target of 300). ``pghm fit`` takes a fixed number of steps, so frames beyond about a hundred
-add time, not detail: the capture's (about 0.2 s a frame here), and the fit's settling of its pose
-track (30 steps a training frame, docs/training.md). On 2 cores, mostly idle, the default fit of a
-300-frame capture took 8 minutes for its two stages and would have taken 35 more to settle; a
-minute of 30 frames/s video, three and a half hours. 100 frames is also what ``pghm fit`` was
-measured on end to end (bench_capture's d)."""
+"""Frames a longer video is thinned to when ``--every`` is not given: one frame in floor(F / 100)
+is read, keeping 100 to 199. ``pghm fit`` takes a fixed number of steps, so more frames add time,
+not detail (docs/lab/defaults.md, "Capture: frames kept from a long video")."""
 
 HEIGHT_RANGE_M = (1.12, 2.13)
 """Heights (metres) Anny's average body reaches with its height phenotype in [0, 1]: the range of
@@ -90,30 +85,17 @@ class BodyFitConfig:
     weight_motion_prior: float = 0.2
     motion_prior_scale: float = 20.0
     """The pose prior learned from motion capture (:mod:`pghm.capture.pose_prior`): its weight, and
-    the squared Mahalanobis distance c at which its robust penalty saturates (0 weight: off).
-    Measured on capture-bench's walks (seeds 0-2, front end cached): PA-MPJPE 47.3 -> 38.3 mm on
-    plain backgrounds and 56.2 -> 47.2 over photographs; a plain Gaussian (no saturation) gains
-    as much on walks but triples the error of a video of arm raises, which the clips never show
-    (36.6 -> 116 mm); saturating at c = 20 keeps it at 35.5 (docs/capture.md)."""
+    the squared Mahalanobis distance c at which its robust penalty saturates (0 weight: off). The
+    saturation keeps motions the clips never show (arm raises) from being pulled to a walk."""
     weight_limits: float = 1.0
     weight_focal: float = 0.1
     weight_shape: float = 1.0
-    """Weights of the objective's terms (module docstring); weight_focal pulls log f to the
-    default, weight_shape the phenotypes to Anny's average (MediaPipe's landmarks over
-    clothes hardly tell the shape: without it the walker of the mono preset's seed 4 came
-    out far heavier, weight 0.85 for a true 0.38, at the same joint error). weight_3d is
-    low because MediaPipe's world landmarks are 10-30 cm off at the wrists and feet (in
-    depth above all) where its 2D landmarks are 2-3 % of the height off: on capture-bench's
-    48-frame videos 2 -> 0.5 took the 2D error from 1.82 to 1.74 % (plain) and 2.55 to
-    2.41 % (photographs), PA-MPJPE from 60.4 to 58.7 mm over photographs; 0.25 or 6 did
-    not do better. The mask terms are strong (30 and 10, from 1 and 0.3) so that the body's
-    outline, not the landmarks' bias, places it: on capture-bench's seed 0-1 videos (front end
-    cached) the body mesh's silhouette IoU against the true masks rose by 0.02-0.03 and the 2D
-    error fell by 0.1-0.2 % of the height; 300 and 100 did no better (docs/capture.md).
-    weight_smooth 100 -> 50 (with the front end's mirrored pass, 100-frame videos, seeds 0-2):
-    MPJPE / PA-MPJPE / 2D 75.6 / 49.1 / 1.70 % -> 74.7 / 47.5 / 1.57 % (plain), 83.8 / 57.3 /
-    2.10 % -> 83.3 / 56.4 / 2.01 % (photographs); 25 or 300 did worse: the gait's fast leg
-    swings are real accelerations."""
+    """Weights of the objective's terms (module docstring of :mod:`pghm.capture.bodyfit`):
+    weight_focal pulls log f to the default, weight_shape the phenotypes to Anny's average (the
+    landmarks over clothes hardly tell the shape). weight_3d is low because MediaPipe's world
+    landmarks are far less accurate than its 2D ones; the mask terms are strong so that the
+    body's outline, not the landmarks' bias, places it; weight_smooth leaves the gait's fast leg
+    swings alone (docs/lab/defaults.md, "Body fit: the objective's weights")."""
 
     silhouette_vertices: int = 1000
     """Mesh vertices (an even subsample) tested against the mask."""
@@ -138,12 +120,11 @@ class BodyFitConfig:
     height_m: float | None = None
     """The person's height in metres when known (``pghm capture --height``): the shape starts, and
     the shape prior pulls, at Anny's average body with its height phenotype set to it
-    (:func:`pghm.capture.bodyfit.shape_of_height`), and the shape stage holds the rest body's height to it (the term
-    ``weight_height ((h(s) - height_m) / HEIGHT_SCALE_M)^2``, h the crown-to-sole extent). One
-    uncalibrated video does not tell a person's size: without it every walker of capture-bench,
-    1.68-1.89 m tall, was fitted 1.60-1.62 m (docs/capture.md)."""
+    (:func:`pghm.capture.bodyfit.shape_of_height`), and the shape stage holds the rest body's
+    height to it (the term ``weight_height ((h(s) - height_m) / HEIGHT_SCALE_M)^2``, h the
+    crown-to-sole extent). One uncalibrated video does not tell a person's size."""
     weight_height: float = 1.0
-    """Weight of the height term (untuned: at 1 the fitted height is the given one to the millimetre)."""
+    """Weight of the height term (untuned: at 1 the fitted height is the given one)."""
 
     def validate(self) -> BodyFitConfig:
         if self.body != "anny":

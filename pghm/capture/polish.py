@@ -14,9 +14,8 @@ split against the finished avatar for :data:`POLISH_TRACK_STEPS` steps
 for the estimator's joints (``bones``), listing them in meta.json's ``aligned_frames``; the training
 frames' poses, shape, cameras, images and masks are unchanged, and the avatar is discarded. The
 training frames are left to ``pghm fit``, which corrects and settles their poses itself against the
-avatar it learns from them alone, and no test image reaches that avatar. Settling every frame, as
-the polish did until 2026-11-27, took 2.5 times as long and met d of issue 22 no better, though
-``pghm fit`` learned a 0.3-0.6 dB sharper avatar from its aligned training poses (docs/capture.md).
+avatar it learns from them alone, and no test image reaches that avatar. Settling every frame here
+too took 2.5 times as long and scored the held-out frames no better (docs/lab/capture-history.md).
 A test frame's pose has seen its own image, as any pose estimator's does, here once, in the capture,
 rather than against the evaluated avatar (the test-time refinement of InstantAvatar and GART, ``pghm
 eval --refine-poses``). It costs a fit and the held-out frames' settling: about 7 minutes for 100
