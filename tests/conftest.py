@@ -14,7 +14,7 @@ torch.set_num_threads(2)
 
 @pytest.fixture(scope="session")
 def body():
-    """The default Anny body (built once per session)."""
+    """The default Anny body (built once per test run)."""
     from pghm.body import load_body
 
     return load_body()
@@ -34,7 +34,7 @@ def atlas128(body):
 
 @pytest.fixture(scope="session")
 def tiny_dataset(tmp_path_factory):
-    """2 synthetic subjects x 2 views x 3 frames at 64 px, rendered once per session."""
+    """2 synthetic subjects x 2 views x 3 frames at 64 px, rendered once per test run."""
     from pghm.synth.config import PRESETS
     from pghm.synth.generate import generate
 
