@@ -50,7 +50,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from common import DOCS, RESULTS, ROOT, load_average, print_table, write_json
+from common import BYTES_PER_GB, DOCS, KB, RESULTS, ROOT, load_average, print_table, timed_child, write_json
 from PIL import Image
 
 from pghm.capture.crop import Region, crop_intrinsics, from_region
@@ -92,9 +92,6 @@ SIZE = (512, 384)
 PRIOR = ROOT / "assets" / "prior.pt"
 PGHM = [sys.executable, "-m", "pghm.cli.main"]
 """The pghm command, run in a child process of this interpreter."""
-BYTES_PER_GB = 1e9
-KB = 1024
-"""ru_maxrss is in kilobytes on Linux."""
 
 
 def photograph(name: str) -> np.ndarray:
@@ -136,22 +133,10 @@ class CaptureRun:
 
 
 def run_capture(video: Path, out: Path, log: Path, options: tuple[str, ...] = ()) -> CaptureRun:
-    """``pghm capture VIDEO --out OUT`` in a child process, so its peak memory is its own.
-
-    ``os.wait4`` gives the child's resource usage: ru_maxrss (kB) is the largest resident
-    set of the child and the processes it waited for (the ffmpeg reader).
-    """
-    command = [*PGHM, "capture", str(video), "--out", str(out), *options]
-    started = time.perf_counter()
-    with open(log, "w") as sink:
-        process = subprocess.Popen(command, stdout=sink, stderr=sink)
-        _, status, usage = os.wait4(process.pid, 0)
-    seconds = time.perf_counter() - started
-    code = os.waitstatus_to_exitcode(status)
-    if code != 0:
-        tail = log.read_text()[-1500:]
-        raise RuntimeError(f"pghm capture failed on {video.name} (status {code}):\n{tail}")
-    return CaptureRun(out, seconds, usage.ru_maxrss * KB / BYTES_PER_GB)
+    """``pghm capture VIDEO --out OUT`` in a child process, so its peak memory is its own (with
+    the ffmpeg reader it waits for)."""
+    seconds, peak_gb = timed_child([*PGHM, "capture", str(video), "--out", str(out), *options], log)
+    return CaptureRun(out, seconds, peak_gb)
 
 
 # ------------------------------------------------------------------ subject pixels <-> video pixels
