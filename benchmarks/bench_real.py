@@ -45,7 +45,7 @@ BUSY_LOOP = [sys.executable, "-c", "while True: pass"]
 
 def turning_video(out: Path, frames: int, seed: int) -> Path:
     """A synthetic person turning round on the spot in front of a plain wall, 512 x 512 H.264."""
-    from pghm.data.synth.video import graded_background, render_walk_video, walk_config
+    from pghm.synth.video import graded_background, render_walk_video, walk_config
 
     config = walk_config(frames, width=512, height=512, motion="turn")
     render_walk_video(config, seed, out, graded_background(*WALL, config.width, config.height))
