@@ -199,8 +199,8 @@ def candidate_rows(subject: Path, work: Path, device: torch.device, config: FitC
 
 def monocular_subject(work: Path, quick: bool) -> Path:
     """subject_000 of ``pghm synth --config mono --seed 1`` (a toy-sized one for ``--quick``)."""
-    from pghm.data.synth.config import PRESETS
-    from pghm.data.synth.generate import generate
+    from pghm.synth.config import PRESETS
+    from pghm.synth.generate import generate
 
     config = PRESETS["mono"]
     if quick:

@@ -26,12 +26,14 @@ from common import ROOT, print_table, setup_threads, write_json
 
 sys.path.insert(0, str(ROOT / "tests"))
 from test_splat import SCENE_SIZES, Scene, random_scene  # noqa: E402
-from test_splat_gsplat import ALPHA_MAX, backend, centred, composite, project_and_bin  # noqa: E402
+from test_splat_gsplat import centred, composite, project_and_bin  # noqa: E402
 
 from pghm.io.avatar import load_avatar  # noqa: E402
 from pghm.render.driver import AvatarDriver  # noqa: E402
 from pghm.render.framing import DEFAULT_FOV_Y, frame_points, orbit_camera  # noqa: E402
 from pghm.splat import Camera  # noqa: E402
+from pghm.splat import gsplat_backend as backend  # noqa: E402
+from pghm.splat.spec import ALPHA_MAX  # noqa: E402
 
 AVATAR = ROOT / "assets" / "avatar.pt"
 AVATAR_SIDE = 256

@@ -26,7 +26,7 @@ from test_splat import SCENE_SIZES, Scene, random_scene
 from pghm.errors import PghmError
 from pghm.splat import Camera, render
 from pghm.splat import gsplat_backend as backend
-from pghm.splat._projection import ALPHA_MAX, ALPHA_MIN
+from pghm.splat.spec import ALPHA_MAX, ALPHA_MIN
 
 gsplat_torch = pytest.importorskip("gsplat.cuda._torch_impl")
 

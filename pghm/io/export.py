@@ -39,10 +39,10 @@ def export_posed_ply(
     from pghm.device import move
 
     from pghm.body import load_body
-    from pghm.data.open_motion import open_motion
     from pghm.io.avatar import avatar_geometry, load_avatar
     from pghm.io.ply import write_ply
     from pghm.model.evaluator import CachedEvaluator
+    from pghm.motion.open_motion import open_motion
 
     avatar = load_avatar(avatar_path).to(device)
     avatar.check_identity(identity)

@@ -30,7 +30,7 @@ import torch
 from torch import Tensor
 
 from pghm.errors import PghmError
-from pghm.splat._projection import COV_DILATION, NEAR_PLANE
+from pghm.splat.spec import COV_DILATION, NEAR_PLANE
 from pghm.splat.camera import Camera
 
 INSTALL_HINT = "pip install 'pghm[gpu]'"
