@@ -160,3 +160,22 @@ def test_optimizer_state_follows_its_parameters():
     resumed.load_state_dict(optimizer.state_dict())
     (state,) = resumed.state.values()
     assert {state[key].device for key in ("exp_avg", "exp_avg_sq", "step")} == {META}
+
+
+@pytest.mark.parametrize("command", ["fit", "train-prior", "eval", "render"])
+def test_cuda_without_gsplat_says_how_to_install(command, two_gpus, tmp_path, monkeypatch, capsys):
+    import importlib
+
+    real = importlib.import_module
+    monkeypatch.setattr(importlib, "import_module", lambda name, *a: _no_gsplat(name) or real(name, *a))
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "assets").mkdir()
+    (tmp_path / "assets" / "avatar.pt").write_bytes(b"")
+    assert main([*COMMANDS[command], "--device", "cuda"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line == "pghm: error: rendering on CUDA needs gsplat, which is not installed: pip install 'pghm[gpu]'"
+
+
+def _no_gsplat(name: str) -> None:
+    if name == "gsplat":
+        raise ImportError("No module named 'gsplat'")

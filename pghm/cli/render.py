@@ -12,7 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from pghm.cli.options import INDEX, Integer, Real, Size, add_device_option
+from pghm.cli.options import INDEX, Integer, Real, Size, add_device_option, rendering_device
 from pghm.errors import PghmError
 from pghm.motion.motion import MAX_FPS, MIN_FPS
 from pghm.render import DEFAULT_FPS, DEFAULT_SIZE, MAX_RENDER_FRAMES, RenderJob, render_video
@@ -93,8 +93,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from pghm.device import resolve_device
-
     job = RenderJob(
         avatar=args.avatar,
         out=args.out,
@@ -113,7 +111,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         yaw=args.yaw,
         follow=not args.no_follow,
         body_model_path=args.body_model_path,
-        device=str(resolve_device(args.device)),
+        device=str(rendering_device(args.device)),
     )
     summary = render_video(job, log=lambda line: print(f"pghm render: {line}", file=sys.stderr))
     width, height = summary.size

@@ -8,9 +8,17 @@ import logging
 import sys
 from pathlib import Path
 
-from pghm.cli.options import MAX_INDEX, POSITIVE_STEPS, SEED, STEPS, Integer, Real, add_device_option
+from pghm.cli.options import (
+    MAX_INDEX,
+    POSITIVE_STEPS,
+    SEED,
+    STEPS,
+    Integer,
+    Real,
+    add_device_option,
+    rendering_device,
+)
 from pghm.cli.render import parse_colour
-from pghm.device import resolve_device
 from pghm.errors import PghmError
 from pghm.io.outputs import check_output
 from pghm.model import ModelConfig
@@ -198,7 +206,7 @@ def cmd_train_prior(args: argparse.Namespace) -> int:
     from pghm.train.prior import train_prior
 
     check_output(args.out, inputs=[args.data_dir, args.body_model_path])
-    device = resolve_device(args.device)
+    device = rendering_device(args.device)
     _logging()
     model = ModelConfig(uv_resolution=args.uv_resolution, latent_channels=args.latent_channels, head=args.head)
     loop = LoopConfig(
@@ -231,7 +239,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from pghm.train.fit import fit
 
     check_output(args.out, inputs=[args.subject_dir, args.prior, args.body_model_path])
-    device = resolve_device(args.device)
+    device = rendering_device(args.device)
     _logging()
     stages = [
         LoopConfig(
@@ -270,7 +278,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     check_output(strip, inputs=inputs, option="--strip")
     if Path(report).resolve() == Path(strip).resolve():
         raise PghmError(f"--report and --strip are the same file ({report}); give two names")
-    device = resolve_device(args.device)
+    device = rendering_device(args.device)
     result = evaluate(
         args.avatar,
         args.subject_dir,
