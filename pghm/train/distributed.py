@@ -6,7 +6,7 @@ each process takes the GPU of its LOCAL_RANK (:func:`process_device`) and they j
 NCCL (:func:`backend_for`). Without torchrun everything runs in one process and these
 functions are no-ops. The training objective is wrapped whole in DistributedDataParallel,
 which averages every gradient across processes after backward. The batch plan, checkpoints
-(written by rank 0, from the CPU) and ``--resume`` do not depend on the device.
+(written by rank 0, read onto the CPU) and ``--resume`` do not depend on the device.
 """
 
 from __future__ import annotations
