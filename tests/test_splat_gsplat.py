@@ -8,8 +8,9 @@ with nerfacc. Its torch projection (``_fully_fused_projection``) and tile binnin
 and binning, and each tile's list is composited here by the rule of gsplat's forward kernel
 (``RasterizeToPixels3DGSFwd.cu``: alpha = min(0.999, o exp(-sigma)), pairs below 1/255
 skipped, a pixel done before the pair that would leave T <= 1e-4). With the spec's rule
-(clamp 0.99, no stop) that must be pghm's float64 image to rounding: any mistake in the
-camera, scales, background, depth or batch mapping shows. With gsplat's rule the image
+(clamp 0.99, no stop) that must be pghm's float64 image to rounding (gsplat orders a tile by
+float32 depth; these scenes hold no Gaussians closer in depth than float32 resolves): any
+mistake in the camera, scales, background, depth or batch mapping shows. With gsplat's rule the image
 differs only where the docs say, by at most what they say.
 """
 
