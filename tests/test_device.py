@@ -179,3 +179,15 @@ def test_cuda_without_gsplat_says_how_to_install(command, two_gpus, tmp_path, mo
 def _no_gsplat(name: str) -> None:
     if name == "gsplat":
         raise ImportError("No module named 'gsplat'")
+
+
+def test_train_prior_with_the_cpu_given(tiny_dataset, tmp_path):
+    """train_prior with ``device=torch.device("cpu")`` trains the same weights as without."""
+    from pghm.train.loop import LoopConfig
+    from pghm.train.prior import PriorConfig, train_prior
+
+    loop = LoopConfig(steps=2, images_per_shard=1, checkpoint_every=0, progress=False)
+    config = PriorConfig(model=ModelConfig(**TINY_MODEL), loop=loop, lpips=False)
+    default = train_prior(tiny_dataset, tmp_path / "default.pt", config).model.state_dict()
+    given = train_prior(tiny_dataset, tmp_path / "cpu.pt", config, device=CPU).model.state_dict()
+    assert all(torch.equal(default[name], given[name]) for name in default)
