@@ -37,7 +37,7 @@ import torch
 from common import RESULTS, machine, print_table
 
 from pghm.body import load_body
-from pghm.device import resolve_device
+from pghm.cli.options import rendering_device
 from pghm.errors import EXIT_USER_ERROR, PghmError
 from pghm.splat import Camera, render
 from pghm.train.evaluate import evaluate
@@ -222,19 +222,10 @@ def quick_candidate() -> FitConfig:
     return config
 
 
-def gsplat_ready(device: torch.device) -> None:
-    """PghmError unless gsplat imports (CUDA only)."""
-    if device.type == "cuda":
-        from pghm.splat.gsplat_backend import load_gsplat
-
-        load_gsplat()
-
-
 def run(args: argparse.Namespace) -> dict:
-    device = resolve_device(args.device)
+    device = rendering_device(args.device)
     if device.type != "cuda" and not args.quick:
         raise PghmError("no CUDA device here: this script measures the GPU (--device cpu --quick checks the script)")
-    gsplat_ready(device)
     sizes = QUICK["splat"] if args.quick else SPLAT_SIZES
     repeats = QUICK["repeats"] if args.quick else TIMING_REPEATS
     with tempfile.TemporaryDirectory() as scratch:
