@@ -160,6 +160,21 @@ class CaptureConfig:
             return 1
         return max(1, frame_count // self.target_frames)
 
+    def check_camera(self, width: int, height: int) -> None:
+        """Raise :class:`PghmError` when ``focal_px`` gives W x H frames a field of view outside
+        :data:`FOV_RANGE_DEG` (fov = 2 atan((L / 2) / f), L = max(W, H)): no lens has it, and the
+        body fit would meet it as a zero or infinite focal length. Asked as soon as the size is known."""
+        if self.focal_px is None:
+            return
+        longest = max(width, height)
+        fov = math.degrees(2 * math.atan(0.5 * longest / self.focal_px))
+        if not FOV_RANGE_DEG[0] <= fov <= FOV_RANGE_DEG[1]:
+            low, high = (0.5 * longest / math.tan(math.radians(deg) / 2) for deg in reversed(FOV_RANGE_DEG))
+            raise PghmError(
+                f"--focal {self.focal_px:g}: a field of view of {fov:.4g} degrees on these {width}x{height} frames; "
+                f"a lens's {FOV_RANGE_DEG[0]:g} to {FOV_RANGE_DEG[1]:g} degrees are {low:.4g} to {high:.4g} pixels"
+            )
+
     def source_intrinsics(self, width: int, height: int) -> np.ndarray | None:
         """(3, 3) K in pixels of the full upright video frame (W x H), or None when unknown.
 

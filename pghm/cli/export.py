@@ -36,7 +36,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output(args.out, inputs=[args.avatar, args.pose])
+    check_output(args.out, inputs=[args.avatar, args.pose, args.body_model_path])
     count = export_posed_ply(
         args.avatar, args.pose, args.frame, args.out, args.view, args.identity, args.body_model_path
     )

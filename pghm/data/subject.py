@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from pghm.body.model import shape_problem
 from pghm.data.motion import MAX_ROTATION, MAX_TRANSLATION
 from pghm.errors import DatasetError, listed
 from pghm.io.atomic import atomic_write_bytes
@@ -387,72 +388,12 @@ def value_problems(
     return found
 
 
-def _check_values(directory: Path, cameras: dict[str, np.ndarray], poses: dict[str, np.ndarray]) -> None:
-    """Values every use of a subject needs (its shapes already checked); DatasetError names the first bad one.
-
-    Cameras and poses must be finite with positive focal lengths and image sizes, frame and
-    view indices in range: a NaN camera or pose would otherwise reach training as a silent NaN.
-    ``pghm data check`` lists every problem; this stops at the first.
-    """
-
-    def fail(file: str, message: str, bad: np.ndarray) -> DatasetError:
-        return DatasetError(
-            f"{directory / file}: {message} for image(s) {_indices(bad)}; run pghm data check {directory}"
-        )
-
-    for file, message, bad in value_problems(cameras, poses):
-        raise fail(file, message, bad)
-    K = cameras["K"].astype(np.float64)
-    bad_focal = ~((K[:, 0, 0] > 0) & (K[:, 1, 1] > 0))
-    if bad_focal.any():
-        raise fail("cameras.npz", "K has a non-positive focal length", bad_focal)
-    bad_size = ~((cameras["height"] >= 1) & (cameras["width"] >= 1))
-    if bad_size.any():
-        raise fail("cameras.npz", "height and width must be positive", bad_size)
-    for key in ("frame_index", "view_index"):
-        if key in cameras:
-            bad_index = ~((cameras[key] >= 0) & (cameras[key] < MAX_FRAME_INDEX))
-            if bad_index.any():
-                raise fail("cameras.npz", f"'{key}' must be in 0..{MAX_FRAME_INDEX - 1}", bad_index)
-    if not np.isfinite(np.atleast_1d(poses["shape"]).astype(np.float64)).all():
-        raise DatasetError(f"{directory / 'poses.npz'}: 'shape' is not finite")
-
-
 def _read_arrays(directory: Path) -> SubjectArrays:
-    """The subject's arrays, with every shape checked (raises DatasetError)."""
+    """The arrays of a subject that :func:`check_subject` found valid (read, not checked again)."""
     cameras = _read_npz(directory / "cameras.npz", CAMERA_KEYS)
     poses = _read_npz(directory / "poses.npz", POSE_KEYS)
-    for file, arrays in (("cameras.npz", cameras), ("poses.npz", poses)):
-        for key, problem in _non_numeric(arrays, NUMERIC_KEYS[file]):
-            raise DatasetError(f"{directory / file}: '{key}' {problem}")
-    n = len(cameras["K"])
-    if n == 0:
-        raise DatasetError(f"{directory / 'cameras.npz'}: describes no images")
     bones = [str(name) for name in np.atleast_1d(poses["bone_names"])]
-    expected = {
-        ("cameras.npz", "K"): (cameras["K"], (n, 3, 3)),
-        ("cameras.npz", "world_to_camera"): (cameras["world_to_camera"], (n, 4, 4)),
-        ("cameras.npz", "height"): (cameras["height"], (n,)),
-        ("cameras.npz", "width"): (cameras["width"], (n,)),
-        ("poses.npz", "rotations"): (poses["rotations"], (n, len(bones), 3)),
-        ("poses.npz", "translation"): (poses["translation"], (n, 3)),
-    }
-    for key in ("frame_index", "view_index"):
-        if key in cameras:
-            expected[("cameras.npz", key)] = (cameras[key], (n,))
-    for key, like in (("rotations_true", "rotations"), ("translation_true", "translation")):
-        if key in poses:
-            expected[("poses.npz", key)] = (poses[key], poses[like].shape)
-    for (file, key), (array, shape) in expected.items():
-        if array.shape != shape:
-            raise DatasetError(f"{directory / file}: '{key}' has shape {array.shape}, expected {shape}")
-    _check_values(directory, cameras, poses)
     splits = _read_json(directory / "splits.json")
-    if not isinstance(splits, dict) or not all(isinstance(v, list) for v in splits.values()):
-        raise DatasetError(f'{directory / "splits.json"}: expected {{"train": [indices], ...}}')
-    for name, indices in splits.items():
-        if not all(type(i) is int and 0 <= i < n for i in indices):
-            raise DatasetError(f"{directory / 'splits.json'}: split {name!r} has an index outside 0..{n - 1}")
     return SubjectArrays(
         K=cameras["K"].astype(np.float32),
         world_to_camera=cameras["world_to_camera"].astype(np.float32),
@@ -526,15 +467,17 @@ class Subject:
 
     @classmethod
     def open(cls, directory: str | Path) -> Subject:
-        """Open a subject folder; raises :class:`DatasetError` naming the first structural problem."""
+        """Open a subject folder; raises :class:`DatasetError` naming the first problem
+        :func:`check_subject` finds (the checks of ``pghm data check`` but the images' pixels)."""
         directory = Path(directory)
         if not directory.is_dir():
             raise DatasetError(f"{directory}: not a folder")
-        meta = _read_json(directory / "meta.json")
-        if not isinstance(meta, dict) or meta.get("format") != SUBJECT_FORMAT:
-            found = meta.get("format") if isinstance(meta, dict) else None
-            raise DatasetError(f"{directory / 'meta.json'}: not a {SUBJECT_FORMAT} (format is {found!r})")
-        return cls(directory, _read_arrays(directory), meta)
+        problems = check_subject(directory, images=False)
+        if problems:
+            more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+            first = problems[0]
+            raise DatasetError(f"{directory / first.path}: {first.message}{more}; run pghm data check {directory}")
+        return cls(directory, _read_arrays(directory), _read_json(directory / "meta.json"))
 
     def __len__(self) -> int:
         return len(self.arrays)
@@ -610,6 +553,21 @@ class Dataset(Sequence[Subject]):
 
     def __getitem__(self, index: int) -> Subject:  # type: ignore[override]
         return Subject.open(self.directory / self.names[index])
+
+
+def is_dataset(path: str | Path) -> bool:
+    """Whether ``path`` holds a data set, by its meta.json's format (a subject otherwise: its own
+    checks then name what is missing, cameras.npz rather than the data set's meta.json)."""
+    try:
+        meta = json.loads((Path(path) / "meta.json").read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError):
+        return False
+    return isinstance(meta, dict) and meta.get("format") == DATASET_FORMAT
+
+
+def open_subjects(path: str | Path) -> list[Subject]:
+    """The subjects of a data set folder, or the one subject of a subject folder."""
+    return list(Dataset.open(path)) if is_dataset(path) else [Subject.open(path)]
 
 
 # ---------------------------------------------------------------------------- checker
@@ -700,6 +658,20 @@ def _check_cameras(cameras: dict, poses: dict | None, problems: list[Problem]) -
         )
 
 
+INDEX_KEYS = ("frame_index", "view_index")
+"""Optional per-image integers of cameras.npz: the frame of the video and the camera of the ring."""
+
+
+def _check_indices(cameras: dict, problems: list[Problem]) -> None:
+    """frame_index and view_index in 0..MAX_FRAME_INDEX - 1 (one pose slot is allocated per frame)."""
+    for key in INDEX_KEYS:
+        if key in cameras:
+            bad = ~((cameras[key] >= 0) & (cameras[key] < MAX_FRAME_INDEX))
+            if bad.any():
+                message = f"'{key}' must be in 0..{MAX_FRAME_INDEX - 1} for image(s) {_indices(bad)}"
+                problems.append(Problem("cameras.npz", message))
+
+
 def _check_png(path: Path, label: str, mode: str, size: tuple[int, int], problems: list[Problem]) -> None:
     """Size and mode of one PNG, and its pixels decoded (a truncated file fails there, not in
     training)."""
@@ -722,11 +694,13 @@ def _check_png(path: Path, label: str, mode: str, size: tuple[int, int], problem
         problems.append(Problem(label, f"unreadable PNG ({_first_line(error)})"))
 
 
-def check_subject(directory: str | Path) -> list[Problem]:
-    """Every problem found in a subject folder (empty when it is valid).
+def check_subject(directory: str | Path, images: bool = True) -> list[Problem]:
+    """Every problem found in a subject folder (empty when it is valid): the one validator of the
+    format, run by ``pghm data check`` and by :meth:`Subject.open` (every command that reads a subject).
 
-    Reads the small files whole, then streams through the images and masks, decoding each
-    (one at a time) so a truncated PNG is found here.
+    Reads the small files whole, then (with ``images``) streams through the images and masks,
+    decoding each (one at a time) so a truncated PNG is found here. Without ``images`` the
+    readers meet a damaged image when they load it (training skips it with a warning).
     """
     directory = Path(directory)
     problems: list[Problem] = []
@@ -754,7 +728,9 @@ def check_subject(directory: str | Path) -> list[Problem]:
         problems.append(Problem("cameras.npz", "describes no images"))
         return problems
     shapes_ok = True
-    for key, shape in (("K", (n, 3, 3)), ("world_to_camera", (n, 4, 4)), ("height", (n,)), ("width", (n,))):
+    camera_shapes = {"K": (n, 3, 3), "world_to_camera": (n, 4, 4), "height": (n,), "width": (n,)}
+    camera_shapes.update({key: (n,) for key in INDEX_KEYS if key in cameras})
+    for key, shape in camera_shapes.items():
         if cameras[key].shape != shape:
             problems.append(Problem("cameras.npz", f"'{key}' has shape {cameras[key].shape}, expected {shape}"))
             shapes_ok = False
@@ -768,8 +744,9 @@ def check_subject(directory: str | Path) -> list[Problem]:
             if poses[key].shape != shape:
                 problems.append(Problem("poses.npz", f"'{key}' has shape {poses[key].shape}, expected {shape}"))
                 continue
-        if not np.isfinite(np.asarray(poses["shape"], dtype=np.float64)).all():
-            problems.append(Problem("poses.npz", "'shape' is not finite"))
+        bad_shape = shape_problem(str(poses["body"]), np.asarray(poses["shape"], dtype=np.float64))
+        if bad_shape is not None:
+            problems.append(Problem("poses.npz", f"'shape' {bad_shape}"))
         if poses["translation"].shape != (n, 3):
             poses = None
     if shapes_ok:
@@ -777,6 +754,7 @@ def check_subject(directory: str | Path) -> list[Problem]:
         for file, message, bad in value_problems(cameras, pose_values):
             problems.append(Problem(file, f"{message} for image(s) {_indices(bad)}"))
         _check_cameras(cameras, poses, problems)
+        _check_indices(cameras, problems)
 
     splits_path = directory / "splits.json"
     try:
@@ -787,6 +765,8 @@ def check_subject(directory: str | Path) -> list[Problem]:
             for name, indices in splits.items():
                 if not isinstance(indices, list) or not all(type(i) is int and 0 <= i < n for i in indices):
                     problems.append(Problem("splits.json", f"split {name!r} must list image indices in 0..{n - 1}"))
+            if splits["train"] == []:
+                problems.append(Problem("splits.json", "split 'train' is empty: a subject needs images to train on"))
             if isinstance(splits.get("test"), list) and isinstance(splits["train"], list):
                 shared = {i for i in splits["train"] if type(i) is int} & {i for i in splits["test"] if type(i) is int}
                 if shared:
@@ -802,6 +782,8 @@ def check_subject(directory: str | Path) -> list[Problem]:
     bad_size = ~((sizes >= 1) & (sizes <= 2**31 - 1)).all(1)
     if bad_size.any():
         problems.append(Problem("cameras.npz", f"height and width must be positive for image(s) {_indices(bad_size)}"))
+        return problems
+    if not images:
         return problems
     for folder in ("images", "masks"):
         if not (directory / folder).is_dir():

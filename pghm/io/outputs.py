@@ -11,7 +11,10 @@
 - a folder that cannot be written (probed by creating and removing a hidden file in the
   nearest existing ancestor: ``os.access`` says yes to root on a read-only mount or ``/sys``),
 - a path that is one of the inputs (same file by ``os.path.samefile``, through symlinks and
-  hard links, or the same resolved path), which would be overwritten.
+  hard links, or the same resolved path), which would be overwritten;
+- a path inside an input folder (``capture FRAMES --out FRAMES/subject``: the input would change
+  under the run, and the next run would read the output as input), and a folder output that
+  holds an input.
 
 Missing parent folders are not created here (a refused run leaves nothing); the writers of
 :mod:`pghm.io.atomic` create them when they write.
@@ -75,6 +78,25 @@ def _same_file(a: Path, b: Path) -> bool:
     return a.resolve() == b.resolve()
 
 
+def _inside(inner: Path, outer: Path) -> bool:
+    """Whether ``inner`` lies in the folder ``outer`` (resolved, through symlinks)."""
+    return outer.resolve() in inner.resolve().parents
+
+
+def _check_against_inputs(path: Path, inputs: Iterable[str | os.PathLike | None], text: str) -> None:
+    """Refuse an output that is an input, lies inside an input folder, or holds an input."""
+    for source in inputs:
+        if source is None or not os.path.lexists(source):
+            continue
+        source = Path(source)
+        if os.path.lexists(path) and _same_file(path, source):
+            raise PghmError(f"{text}: is also an input ({source}); writing it would destroy that input")
+        if source.is_dir() and _inside(path, source):
+            raise PghmError(f"{text}: is inside the input folder {source}; write it elsewhere")
+        if _inside(source, path):
+            raise PghmError(f"{text}: holds the input {source}; write it elsewhere")
+
+
 def check_output(
     path: str | os.PathLike,
     inputs: Iterable[str | os.PathLike | None] = (),
@@ -110,9 +132,7 @@ def check_output(
     reason = _probe_writable(directory)
     if reason is not None:
         raise PghmError(f"{text}: cannot write in {directory}: {reason}")
-    for source in inputs:
-        if source is not None and os.path.lexists(source) and os.path.lexists(path) and _same_file(path, Path(source)):
-            raise PghmError(f"{text}: is also an input ({source}); writing it would destroy that input")
+    _check_against_inputs(path, inputs, text)
     return path
 
 

@@ -21,7 +21,7 @@ from PIL import Image
 from torch import Tensor, nn
 
 from pghm.body.model import BodyModel
-from pghm.data.subject import Dataset, Frame, Subject, stated_pose_noise
+from pghm.data.subject import Frame, Subject, open_subjects, stated_pose_noise
 from pghm.errors import DatasetError, PghmError
 from pghm.io.read_errors import IMAGE_READ_ERRORS
 from pghm.splat import Camera
@@ -128,10 +128,7 @@ class TrainingData:
         root = Path(root)
         if not root.is_dir():
             raise DatasetError(f"{root}: data folder not found")
-        if (root / "cameras.npz").is_file():
-            self.subjects = [Subject.open(root)]
-        else:
-            self.subjects = list(Dataset.open(root))
+        self.subjects = open_subjects(root)
         if max_identities is not None:
             if max_identities < 1:
                 raise DatasetError(f"max_identities must be at least 1, got {max_identities}")
@@ -216,6 +213,15 @@ class TrainingData:
     @property
     def num_identities(self) -> int:
         return len(self.subjects)
+
+    def check_body(self, body_name: str, owner: str | Path) -> None:
+        """:class:`DatasetError` naming the subject's poses.npz when its body is not ``body_name``, the
+        body of ``owner`` (the avatar or prior file the data meets): one body's poses mean nothing to another."""
+        if self.body_name != body_name:
+            raise DatasetError(
+                f"{self.subjects[0].directory / 'poses.npz'}: poses of the '{self.body_name}' body, "
+                f"and {owner} is of the '{body_name}' body"
+            )
 
     def shape(self, identity: int) -> Tensor:
         return torch.as_tensor(self.subjects[identity].arrays.shape, dtype=torch.float32)

@@ -219,8 +219,7 @@ def fit(
         prior_avatar = prior if isinstance(prior, Avatar) else load_avatar(prior)
         if prior_avatar.kind != "prior":
             raise PghmError(f"{prior}: is a personalised avatar, not a prior (pghm train-prior); fit needs a prior")
-        if data.body_name != prior_avatar.body_name:
-            raise PghmError(f"the subject uses the '{data.body_name}' body, the prior '{prior_avatar.body_name}'")
+        data.check_body(prior_avatar.body_name, prior if not isinstance(prior, Avatar) else "the prior")
         model = prior_avatar.model
         if config.uv_resolution not in (None, model.config.uv_resolution):
             model = model.at_resolution(config.uv_resolution)
