@@ -14,7 +14,7 @@ import sys
 from pghm.cli.options import Integer
 from pghm.data.subject import check, count_images
 from pghm.errors import EXIT_USER_ERROR
-from pghm.io.outputs import check_output
+from pghm.io.outputs import PNG_SUFFIXES, check_output
 
 MIN_TILE, MAX_TILE = 16, 2048
 """Contact-sheet tile sides accepted, in pixels."""
@@ -35,7 +35,7 @@ def _check(args: argparse.Namespace) -> int:
 def _sheet(args: argparse.Namespace) -> int:
     from pghm.data.synth.sheet import contact_sheet
 
-    check_output(args.out, inputs=[args.dir, args.mono])
+    check_output(args.out, inputs=[args.dir, args.mono], suffixes=PNG_SUFFIXES)
     sheet = contact_sheet(args.dir, args.out, tile=args.tile, mono_dir=args.mono)
     print(f"{args.out}: {sheet.shape[1]}x{sheet.shape[0]}")
     return 0

@@ -24,7 +24,7 @@ from pghm.data.procedural import MAX_PROCEDURAL_FRAMES, PROCEDURAL_MOTIONS, proc
 from pghm.data.retarget import RIG_MAPS, UNIT_SCALES, clip_facing, detect_rig, import_bvh, leg_length, retarget_bvh
 from pghm.errors import MotionFileError
 from pghm.io.atomic import save_figure
-from pghm.io.outputs import check_output
+from pghm.io.outputs import FIGURE_SUFFIXES, check_output
 
 PREVIEW_VERTEX_STRIDE = 4
 """Plot every 4th vertex: enough points to read a pose, few enough to draw quickly."""
@@ -141,7 +141,7 @@ def _preview(args: argparse.Namespace) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    check_output(args.out, inputs=[*args.clips, args.body_model_path])
+    check_output(args.out, inputs=[*args.clips, args.body_model_path], suffixes=FIGURE_SUFFIXES)
     body = _body(args)
     rest = body.rest()
     floor = float(rest.vertices[:, 1].min())

@@ -11,7 +11,7 @@ from pathlib import Path
 from pghm.cli.options import MAX_INDEX, POSITIVE_STEPS, SEED, STEPS, Integer, Real
 from pghm.cli.render import parse_colour
 from pghm.errors import PghmError
-from pghm.io.outputs import check_output
+from pghm.io.outputs import PNG_SUFFIXES, check_output
 from pghm.model import ModelConfig
 from pghm.model.config import MAX_CHANNELS
 from pghm.train.background import BACKGROUND_KINDS, WHITE
@@ -262,7 +262,7 @@ def run_eval(args: argparse.Namespace) -> int:
     strip = args.strip or f"{args.avatar}.eval.png"
     inputs = [args.avatar, args.subject_dir, args.body_model_path]
     check_output(report, inputs=inputs, option="--report")
-    check_output(strip, inputs=inputs, option="--strip")
+    check_output(strip, inputs=inputs, option="--strip", suffixes=PNG_SUFFIXES)
     if Path(report).resolve() == Path(strip).resolve():
         raise PghmError(f"--report and --strip are the same file ({report}); give two names")
     result = evaluate(

@@ -12,6 +12,7 @@
   nearest existing ancestor: ``os.access`` says yes to root on a read-only mount or ``/sys``),
 - a path that is one of the inputs (same file by ``os.path.samefile``, through symlinks and
   hard links, or the same resolved path), which would be overwritten;
+- a name whose suffix the writer cannot produce (a figure as ``.txt``, a PNG as ``.jpg``),
 - a path inside an input folder (``capture FRAMES --out FRAMES/subject``: the input would change
   under the run, and the next run would read the output as input), and a folder output that
   holds an input.
@@ -44,6 +45,13 @@ from pathlib import Path
 
 from pghm.errors import PghmError
 
+FIGURE_SUFFIXES = (
+    ".avif", ".eps", ".gif", ".jpeg", ".jpg", ".pdf", ".pgf", ".png", ".ps", ".raw", ".rgba", ".svg", ".svgz",
+    ".tif", ".tiff", ".webp",
+)  # fmt: skip
+"""The suffixes matplotlib's Agg canvas saves a figure as (:func:`pghm.io.atomic.save_figure`)."""
+PNG_SUFFIXES = (".png",)
+"""Outputs written as PNG bytes whatever their name."""
 STAGING_SUFFIX = ".partial"
 """Folder outputs are built in ``.<name>.<random>.partial`` beside their destination."""
 
@@ -102,6 +110,7 @@ def check_output(
     inputs: Iterable[str | os.PathLike | None] = (),
     folder: bool = False,
     option: str = "--out",
+    suffixes: tuple[str, ...] = (),
 ) -> Path:
     """``path`` as a Path, after refusing what would fail or destroy an input (see the module doc).
 
@@ -111,9 +120,12 @@ def check_output(
         folder: the output is a folder, built with :func:`staged_folder` (it may exist as an
             empty folder, never a non-empty one: nothing of another run is mixed in or lost).
         option: the option's name, for the message.
+        suffixes: the name endings the writer produces (lower case; empty: any name).
     """
     path = Path(path)
     text = f"{option} {path}"
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise PghmError(f"{text}: must end in {', '.join(suffixes)} (the format written)")
     if os.path.lexists(path):
         mode = os.stat(path).st_mode if path.exists() else os.lstat(path).st_mode
         if folder and not stat.S_ISDIR(mode):

@@ -35,6 +35,7 @@ from pghm.io.torch_file import TorchFileError, load_torch_file
 from pghm.model.geometry import SubjectGeometry
 from pghm.model.pghm import PGHM
 from pghm.splat import Camera, render
+from pghm.test_hook import interrupt_point
 from pghm.train import distributed
 from pghm.train.background import BACKGROUND_KINDS, BLACK, WHITE, composite_render, composite_target, draw_backgrounds
 from pghm.train.data import PoseCorrections, Sample, TrainingData
@@ -432,6 +433,7 @@ def run_stage(
             if rank == 0 and config.checkpoint_every > 0 and state.step % config.checkpoint_every == 0:
                 state.bad_images = sorted(data.bad)
                 save_checkpoint(checkpoint, objective, optimizer, state, extra)
+            interrupt_point("train-step")
     except KeyboardInterrupt:
         if rank == 0:
             state.bad_images = sorted(data.bad)

@@ -102,8 +102,6 @@ def _strip(subject: Subject, count: int, width: int) -> np.ndarray:
     return strip
 
 
-
-
 def _png(pixels: np.ndarray) -> bytes:
     import io
 
