@@ -187,8 +187,14 @@ def register(subparsers) -> None:
     evaluate.set_defaults(func=run_eval)
 
 
+QUIET_LOGGERS = ("anny",)
+"""Libraries whose info lines (the body model's cache loads) are not pghm's to print."""
+
+
 def _logging() -> None:
     logging.basicConfig(level=logging.INFO, format="pghm: %(message)s", stream=sys.stderr)
+    for name in QUIET_LOGGERS:
+        logging.getLogger(name).setLevel(logging.WARNING)
 
 
 def run_train_prior(args: argparse.Namespace) -> int:

@@ -199,6 +199,7 @@ def fit(
         if getattr(config, name) is not None:
             check_learning_rate(name, getattr(config, name))
     out = Path(out)
+    ckpt = checkpoint_path(out, resume)
     data = TrainingData(subject_dir, split=config.split, pose_smoothing=config.pose_smoothing)
     if data.num_identities != 1:
         raise PghmError(f"{subject_dir}: fit takes one subject folder, found {data.num_identities}")
@@ -232,9 +233,6 @@ def fit(
     corrections = data.pose_corrections(geometries.body) if config.refine_poses else None
     lpips, lpips_line = lpips_for(config.lpips)
     objective = AvatarObjective(model, latent, corrections, config.stage1.loss, lpips)
-    ckpt = checkpoint_path(out)
-    if resume and not ckpt.is_file():
-        raise PghmError(f"--resume: no checkpoint {ckpt} to continue from")
     payload = load_checkpoint(ckpt) if resume else None
     start_stage = _checkpoint_stage(payload, ckpt) if payload else 1
 

@@ -74,8 +74,12 @@ class PriorConfig:
     """Train on the first this-many subjects only (the identity-count ablation); None: all."""
 
 
-def checkpoint_path(out: Path) -> Path:
-    return out.with_name(out.name + ".ckpt")
+def checkpoint_path(out: Path, resume: bool = False) -> Path:
+    """OUT.ckpt; with ``resume``, :class:`PghmError` unless it exists (asked before any data is read)."""
+    ckpt = out.with_name(out.name + ".ckpt")
+    if resume and not ckpt.is_file():
+        raise PghmError(f"--resume: no checkpoint {ckpt} to continue from")
+    return ckpt
 
 
 class GeometryCache:
@@ -127,6 +131,7 @@ def train_prior(
         check_learning_rate(name, getattr(config, name))
     distributed.init()
     out = Path(out)
+    ckpt = checkpoint_path(out, resume)
     data = TrainingData(data_dir, max_identities=config.max_identities)
     check_step_memory(data, config.loop, "train-prior")
     geometries = GeometryCache(data, config.model, config.body_model_path)
@@ -147,10 +152,7 @@ def train_prior(
     trainable = [p for group in groups for p in group["params"]]
 
     state = LoopState()
-    ckpt = checkpoint_path(out)
     if resume:
-        if not ckpt.is_file():
-            raise PghmError(f"--resume: no checkpoint {ckpt} to continue from")
         state = restore(load_checkpoint(ckpt), objective, optimizer)
         log.info("resuming from %s at step %d", ckpt, state.step)
     state = run_stage(
