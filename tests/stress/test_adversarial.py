@@ -721,6 +721,15 @@ def _frame_index_negative(folder: Path) -> None:
     (folder / "cameras.npz").write_bytes(npz_bytes(cameras))
 
 
+def _break_two_images(folder: Path) -> None:
+    """The first two training images: a dangling link and a corrupt PNG."""
+    first, second = json.loads((folder / "splits.json").read_text())["train"][:2]
+    dangling = folder / "images" / f"{first:06d}.png"
+    dangling.unlink()
+    dangling.symlink_to(folder / "nowhere.png")
+    (folder / "images" / f"{second:06d}.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 40)
+
+
 def leak_cases(world: dict, work: Path) -> dict[str, tuple[list[str], str]]:
     """One row per class of the leaks closed by mechanism: name -> (argv, words the one error line must contain)."""
     a, video = str(world["avatar"]), str(world["video"])
@@ -732,6 +741,7 @@ def leak_cases(world: dict, work: Path) -> dict[str, tuple[list[str], str]]:
     (damaged / "notes.txt").write_text("not an image, not read\n")
     smplx = _rewrite_subject(world, work / "smplx_subject", lambda f: _set_poses(f, body="smplx"))
     bare = _rewrite_subject(world, work / "no_cameras", lambda f: (f / "cameras.npz").unlink())
+    broken = _rewrite_subject(world, work / "broken_images", _break_two_images)
     return {
         "physical range: capture --focal 1e-300 (a 180-degree field of view on 32x32 frames)": (
             ["capture", video, "--out", str(work / "S"), "--focal", "1e-300", "--quiet"],
@@ -748,6 +758,10 @@ def leak_cases(world: dict, work: Path) -> dict[str, tuple[list[str], str]]:
         "unreadable inputs: a frame folder with a dangling link, a link loop and a corrupt PNG": (
             ["capture", str(damaged), "--out", str(work / "S"), "--quiet"],
             "3 of its 6 image file(s) cannot be read (005.png, 006.png, 007.png)",
+        ),
+        "unreadable inputs: fit on a subject with a dangling image link and a corrupt PNG": (
+            ["fit", str(broken), "--prior", "scratch", "--out", str(work / "a.pt"), "--no-lpips"],
+            "2 file(s) of its 'train' images and masks cannot be opened",
         ),
         "value outside its domain: export of an avatar whose body.shape holds 1e6 (phenotypes: [0, 1])": (
             ["export", str(_avatar_with_shape(world, work / "tall.pt", 1e6)), "--out", str(work / "x.ply")],
@@ -878,32 +892,32 @@ def unattacked_cases(world: dict, work: Path, tiny_dataset: Path) -> dict[str, t
             [*prior[:1], str(no_cameras), *prior[1:]],
             "subject_001/cameras.npz: missing",
         ),
-        "train-prior --resume without a checkpoint": (
+        "train-prior: --resume without a checkpoint": (
             [*prior[:1], str(tiny_dataset), *prior[1:], "--resume"],
             "no checkpoint",
         ),
         "bench: an unknown benchmark": (["bench", "nosuch"], "unknown benchmark"),
-        "bench splat --plot p.txt (refused before the sweep)": (
+        "bench: splat --plot p.txt (refused before the sweep)": (
             ["bench", "splat", "--out", out, "--plot", str(work / "p.txt"), *TINY_RUN["bench"]],
             "must end in",
         ),
-        "data sheet of a folder that is neither a subject nor a data set": (
+        "data sheet: a folder that is neither a subject nor a data set": (
             ["data", "sheet", str(listing_a_ghost.parent / "out_of_nothing"), "--out", str(work / "s.png")],
             "out_of_nothing",
         ),
-        "data sheet --out sheet.jpg (a PNG under another name)": (
+        "data sheet: --out sheet.jpg (a PNG under another name)": (
             ["data", "sheet", str(world["subject"]), "--out", str(work / "sheet.jpg")],
             "must end in .png",
         ),
-        "data sheet --mono of a missing folder": (
+        "data sheet: --mono of a missing folder": (
             ["data", "sheet", str(world["subject"]), "--out", str(work / "s.png"), "--mono", str(work / "gone")],
             "gone",
         ),
-        "motion make --body smplx without its model file": (
+        "motion make: --body smplx without its model file": (
             ["motion", "make", "walk", "--body", "smplx", "--out", str(work / "m.npz")],
             "--body-model-path",
         ),
-        "motion make of an unknown name": (["motion", "make", "moonwalk", "--out", str(work / "m.npz")], "moonwalk"),
+        "motion make: an unknown name": (["motion", "make", "moonwalk", "--out", str(work / "m.npz")], "moonwalk"),
     }
 
 
@@ -915,7 +929,7 @@ def test_commands_not_attacked_before(world, tiny_dataset, tmp_path):
         result = cli(*argv, cwd=tmp_path)
         ok, observed = holds_contract(result, before, snapshot(work))
         check(
-            f"adversarial: {name.split(' ')[0].rstrip(':')}",
+            f"adversarial: {name.split(':')[0]}",
             name,
             f"exit 2, one line with '{words}', nothing written",
             observed,
