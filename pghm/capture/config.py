@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pghm.data.subject import FOV_RANGE_DEG, focal_range
 from pghm.errors import PghmError
 from pghm.io.avatar import recorded_path
 
@@ -27,8 +28,6 @@ MIN_FRAMES = 8
 
 MIN_SIZE = 16
 """Smallest --size (pixels): below it MediaPipe finds no body."""
-FOV_RANGE_DEG = (1.0, 179.0)
-"""--fov bounds, degrees (a pinhole camera's field of view lies strictly between 0 and 180)."""
 MAX_FOCAL_PX = 1e6
 """Largest --focal, pixels (a 1,000 mm lens on a 1 um-pixel sensor)."""
 DEFAULT_SIZE = 512
@@ -167,9 +166,9 @@ class CaptureConfig:
         if self.focal_px is None:
             return
         longest = max(width, height)
-        fov = math.degrees(2 * math.atan(0.5 * longest / self.focal_px))
-        if not FOV_RANGE_DEG[0] <= fov <= FOV_RANGE_DEG[1]:
-            low, high = (0.5 * longest / math.tan(math.radians(deg) / 2) for deg in reversed(FOV_RANGE_DEG))
+        low, high = focal_range(longest)
+        if not low <= self.focal_px <= high:
+            fov = math.degrees(2 * math.atan(0.5 * longest / self.focal_px))
             raise PghmError(
                 f"--focal {self.focal_px:g}: a field of view of {fov:.4g} degrees on these {width}x{height} frames; "
                 f"a lens's {FOV_RANGE_DEG[0]:g} to {FOV_RANGE_DEG[1]:g} degrees are {low:.4g} to {high:.4g} pixels"

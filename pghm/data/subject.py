@@ -339,6 +339,18 @@ def _non_numeric(arrays: dict[str, np.ndarray], keys: tuple[str, ...]) -> list[t
 
 MAX_FRAME_INDEX = 10**6
 """Largest frame_index accepted: one pose-correction slot is allocated per frame up to it."""
+FOV_RANGE_DEG = (1.0, 179.0)
+"""A camera's field of view along its image's longest side, degrees: what lenses give (a pinhole's
+lies strictly between 0 and 180; a focal length outside it is a unit mistake or corrupt data)."""
+
+
+def focal_range(longest_side: float) -> tuple[float, float]:
+    """(shortest, longest) focal length in pixels whose field of view across ``longest_side`` pixels
+    lies in :data:`FOV_RANGE_DEG`: f = (L / 2) / tan(fov / 2)."""
+    low, high = (0.5 * longest_side / math.tan(math.radians(fov) / 2) for fov in reversed(FOV_RANGE_DEG))
+    return low, high
+
+
 MAX_INTRINSIC = 1e7
 """Largest |entry| of K, in pixels (a focal length of 1e7 px is a 0.006 degree field of view)."""
 VALUE_BOUNDS = {
@@ -618,9 +630,14 @@ def _check_cameras(cameras: dict, poses: dict | None, problems: list[Problem]) -
     K = cameras["K"].astype(np.float64)
     E = cameras["world_to_camera"].astype(np.float64)
     finite = np.isfinite(K).reshape(len(K), -1).all(1) & np.isfinite(E).reshape(len(E), -1).all(1)
-    bad_focal = finite & ~((K[:, 0, 0] > 0) & (K[:, 1, 1] > 0))
+    longest = np.maximum(cameras["width"], cameras["height"]).astype(np.float64).clip(min=1.0)
+    shortest_focal, longest_focal = focal_range(1.0)
+    focal = np.stack([K[:, 0, 0], K[:, 1, 1]], axis=1) / longest[:, None]
+    bad_focal = finite & ~((focal >= shortest_focal) & (focal <= longest_focal)).all(1)
     if bad_focal.any():
-        problems.append(Problem("cameras.npz", f"K has a non-positive focal length for image(s) {_indices(bad_focal)}"))
+        low, high = FOV_RANGE_DEG
+        message = f"K's focal length is outside a field of view of {low:g} to {high:g} degrees for image(s)"
+        problems.append(Problem("cameras.npz", f"{message} {_indices(bad_focal)}"))
     rotation = E[:, :3, :3]
     not_rigid = np.zeros(len(E), bool)
     for _, message, bad in value_problems(cameras, None):

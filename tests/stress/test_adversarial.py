@@ -467,20 +467,27 @@ def file_cases(world: dict, work: Path) -> dict[str, tuple[list[str], str]]:
     return cases
 
 
-def test_bad_file_contents_are_refused_at_the_loader(world, tmp_path):
+def refuse_each(area, cases: dict[str, tuple[list[str], str]], world: dict, tmp_path: Path) -> None:
+    """Run every case (name -> (argv, words)): exit 2, one line holding its words, nothing written under
+    ``tmp_path``/work, every input unchanged. ``area`` is the report's section, or a function of the name."""
     work = tmp_path / "work"
-    work.mkdir()
-    for name, (argv, words) in file_cases(world, work).items():
+    for name, (argv, words) in cases.items():
+        inputs = _fingerprint(world)
         before = snapshot(work)
         result = cli(*argv, cwd=tmp_path)
         ok, observed = holds_contract(result, before, snapshot(work))
         check(
-            "adversarial: file contents",
+            area(name) if callable(area) else area,
             name,
-            f"exit 2, one line naming the file and '{words}', nothing written",
+            f"exit 2, one line with '{words}', nothing written, inputs unchanged",
             observed,
-            ok and words in result.stderr,
+            ok and words in result.stderr and inputs == _fingerprint(world),
         )
+
+
+def test_bad_file_contents_are_refused_at_the_loader(world, tmp_path):
+    (tmp_path / "work").mkdir()
+    refuse_each("adversarial: file contents", file_cases(world, tmp_path / "work"), world, tmp_path)
 
 
 def test_data_check_lists_bad_values_and_truncated_pngs(world, tmp_path):
@@ -623,29 +630,35 @@ def test_checkpoint_is_gone_after_success_and_prior_kinds(world, tiny_dataset, t
         check("adversarial: misc", name, f"exit 2, one line with '{words}'", observed, ok and words in result.stderr)
 
 
-# ---------------------------------------------------------------------------------- Ctrl-C
+# ------------------------------------------------------------------------ Ctrl-C and SIGTERM
 
 
-@pytest.mark.parametrize(
-    "point,argv",
-    [
-        ("startup", ["motion", "make", "walk", "--out", "m.npz"]),
-        ("render-frame", ["render", "AVATAR", "--frames", "3", "--out", "frames", "--backend", "cpu", "--size", "8x6"]),
-        ("render-frame", ["render", "AVATAR", "--frames", "3", "--out", "v.mp4", "--backend", "cpu", "--size", "8x6"]),
-        ("synth-subjects", ["synth", "--out", "data", "--workers", "1", "--quiet"]),
-    ],
-)
-def test_ctrl_c_leaves_nothing(point, argv, world, tmp_path):
+INTERRUPTED_RUNS = [
+    ("startup", ["motion", "make", "walk", "--out", "m.npz"]),
+    ("render-frame", ["render", "AVATAR", "--frames", "3", "--out", "frames", "--backend", "cpu", "--size", "8x6"]),
+    ("render-frame", ["render", "AVATAR", "--frames", "3", "--out", "v.mp4", "--backend", "cpu", "--size", "8x6"]),
+    ("synth-subjects", ["synth", "--out", "data", "--workers", "1", "--quiet"]),
+]
+"""(test-hook point, command) of the runs interrupted at a chosen moment (pghm/test_hook.py)."""
+SIGNALS = {"SIGINT": ("Ctrl-C", "interrupted"), "SIGTERM": ("SIGTERM", "terminated")}
+"""Signal -> (report area, the one line's word): SIGTERM must unwind as Ctrl-C does."""
+
+
+@pytest.mark.parametrize("signal_name", list(SIGNALS))
+@pytest.mark.parametrize("point,argv", INTERRUPTED_RUNS)
+def test_interrupt_leaves_nothing(signal_name, point, argv, world, tmp_path):
+    area, word = SIGNALS[signal_name]
     argv = [str(world["avatar"]) if a == "AVATAR" else a for a in argv]
-    result = cli(*argv, cwd=tmp_path, env={TEST_INTERRUPT_VARIABLE: point})
+    result = cli(*argv, cwd=tmp_path, env={TEST_INTERRUPT_VARIABLE: f"{point}:{signal_name}"})
     lines = [line for line in result.error_lines if "Loading cached" not in line]
     left = sorted(p.name for p in tmp_path.iterdir())
+    code = 128 + signal.Signals[signal_name]
     check(
-        "adversarial: Ctrl-C",
-        f"SIGINT at '{point}' (test hook): pghm {' '.join(argv[:2])} ...",
-        "exit 130, one line 'pghm: interrupted', no traceback, no file or folder left (staged outputs removed)",
+        f"adversarial: {area}",
+        f"{signal_name} at '{point}' (test hook): pghm {' '.join(argv[:2])} ... {argv[argv.index('--out') + 1]}",
+        f"exit {code}, one line 'pghm: {word}', no traceback, no file or folder left (staged outputs removed)",
         f"exit {result.code}: {' | '.join(lines)[-160:]}; left: {left or 'nothing'}",
-        result.code == 128 + signal.SIGINT and lines == ["pghm: interrupted"] and not left,
+        result.code == code and lines == [f"pghm: {word}"] and not left,
     )
 
 
@@ -714,10 +727,10 @@ def _empty_train(folder: Path) -> None:
     (folder / "splits.json").write_text(json.dumps({"train": [], "test": splits["test"]}))
 
 
-def _frame_index_negative(folder: Path) -> None:
+def _set_camera(folder: Path, key: str, index: tuple, value: float) -> None:
     with np.load(folder / "cameras.npz", allow_pickle=False) as data:
         cameras = {key: data[key].copy() for key in data.files}
-    cameras["frame_index"][1] = -1
+    cameras[key][index] = value
     (folder / "cameras.npz").write_bytes(npz_bytes(cameras))
 
 
@@ -787,20 +800,8 @@ def leak_cases(world: dict, work: Path) -> dict[str, tuple[list[str], str]]:
 
 
 def test_each_leak_class_is_closed(world, tmp_path):
-    work = tmp_path / "work"
-    work.mkdir()
-    for name, (argv, words) in leak_cases(world, work).items():
-        inputs = _fingerprint(world)
-        before = snapshot(work)
-        result = cli(*argv, cwd=tmp_path)
-        ok, observed = holds_contract(result, before, snapshot(work))
-        check(
-            "adversarial: leak classes",
-            name,
-            f"exit 2, one line with '{words}', nothing written, inputs unchanged",
-            observed,
-            ok and words in result.stderr and inputs == _fingerprint(world),
-        )
+    (tmp_path / "work").mkdir()
+    refuse_each("adversarial: leak classes", leak_cases(world, tmp_path / "work"), world, tmp_path)
 
 
 SUBJECT_DAMAGE = {
@@ -809,7 +810,14 @@ SUBJECT_DAMAGE = {
         lambda folder: _set_poses(folder, shape=np.full(6, 2.0)),
         "poses.npz: 'shape' holds 2",
     ),
-    "a frame_index of -1": (_frame_index_negative, "'frame_index' must be in 0..999999 for image(s) 1"),
+    "a frame_index of -1": (
+        lambda folder: _set_camera(folder, "frame_index", (1,), -1),
+        "'frame_index' must be in 0..999999 for image(s) 1",
+    ),
+    "a focal length of 1e-300 px (a 180-degree field of view)": (
+        lambda folder: _set_camera(folder, "K", (2, 0, 0), 1e-300),
+        "K's focal length is outside a field of view of 1 to 179 degrees for image(s) 2",
+    ),
     "no cameras.npz": (lambda folder: (folder / "cameras.npz").unlink(), "cameras.npz: missing"),
 }
 """Damage to a subject -> the problem data check lists and every reader names (one validator)."""
@@ -922,19 +930,9 @@ def unattacked_cases(world: dict, work: Path, tiny_dataset: Path) -> dict[str, t
 
 
 def test_commands_not_attacked_before(world, tiny_dataset, tmp_path):
-    work = tmp_path / "work"
-    work.mkdir()
-    for name, (argv, words) in unattacked_cases(world, work, tiny_dataset).items():
-        before = snapshot(work)
-        result = cli(*argv, cwd=tmp_path)
-        ok, observed = holds_contract(result, before, snapshot(work))
-        check(
-            f"adversarial: {name.split(':')[0]}",
-            name,
-            f"exit 2, one line with '{words}', nothing written",
-            observed,
-            ok and words in result.stderr,
-        )
+    (tmp_path / "work").mkdir()
+    cases = unattacked_cases(world, tmp_path / "work", tiny_dataset)
+    refuse_each(lambda name: f"adversarial: {name.split(':')[0]}", cases, world, tmp_path)
 
 
 TWO_WRITERS_CONFIG = (
@@ -1011,29 +1009,6 @@ def test_two_synth_runs_writing_one_output(tmp_path):
 
 
 # --------------------------------------------------------------------------------- SIGTERM
-
-
-@pytest.mark.parametrize(
-    "point,argv",
-    [
-        ("startup", ["motion", "make", "walk", "--out", "m.npz"]),
-        ("render-frame", ["render", "AVATAR", "--frames", "3", "--out", "v.mp4", "--backend", "cpu", "--size", "8x6"]),
-        ("render-frame", ["render", "AVATAR", "--frames", "3", "--out", "frames", "--backend", "cpu", "--size", "8x6"]),
-        ("synth-subjects", ["synth", "--out", "data", "--workers", "1", "--quiet"]),
-    ],
-)
-def test_sigterm_leaves_nothing(point, argv, world, tmp_path):
-    argv = [str(world["avatar"]) if a == "AVATAR" else a for a in argv]
-    result = cli(*argv, cwd=tmp_path, env={TEST_INTERRUPT_VARIABLE: f"{point}:SIGTERM"})
-    lines = [line for line in result.error_lines if "Loading cached" not in line]
-    left = sorted(p.name for p in tmp_path.iterdir())
-    check(
-        "adversarial: SIGTERM",
-        f"SIGTERM at '{point}' (test hook): pghm {' '.join(argv[:2])} ... {argv[argv.index('--out') + 1]}",
-        "exit 143, one line 'pghm: terminated', no traceback, no file or folder left (staged outputs removed)",
-        f"exit {result.code}: {' | '.join(lines)[-160:]}; left: {left or 'nothing'}",
-        result.code == 128 + signal.SIGTERM and lines == ["pghm: terminated"] and not left,
-    )
 
 
 def test_sigterm_during_fit_leaves_a_resumable_checkpoint(world, tiny_prior, tmp_path):
