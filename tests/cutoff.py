@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pghm.splat._projection import ALPHA_MAX, ALPHA_MIN, COV_DILATION, FRUSTUM_CLAMP, NEAR_PLANE
+from pghm.splat.spec import ALPHA_MAX, ALPHA_MIN, COV_DILATION, FRUSTUM_CLAMP, NEAR_PLANE
 
 MAX_ERROR = 2e-3
 """The project's GL-vs-CPU bar for a pixel with no pair at a threshold. A relative error e of every

@@ -24,7 +24,7 @@ from pghm.gl import SpriteRenderer, driver_info, headless_context
 from pghm.gl.context import EGL_PACKAGES
 from pghm.gl.footprint import sprite_extent
 from pghm.gl.sort import BitonicSorter, depth_order
-from pghm.splat._projection import ALPHA_MAX, ALPHA_MIN, COV_DILATION, FRUSTUM_CLAMP, NEAR_PLANE
+from pghm.splat.spec import ALPHA_MAX, ALPHA_MIN, COV_DILATION, FRUSTUM_CLAMP, NEAR_PLANE
 
 from cutoff import BAND, MAX_ERROR, MEAN_ERROR, flip_allowance
 

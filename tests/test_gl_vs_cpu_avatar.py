@@ -27,7 +27,7 @@ import pytest
 import torch
 
 from pghm.body import load_body
-from pghm.data.open_motion import open_motion
+from pghm.motion.open_motion import open_motion
 from pghm.gl import SpriteRenderer, headless_context
 from pghm.io.avatar import load_avatar
 from pghm.render import AvatarDriver, frame_points, orbit_camera

@@ -8,10 +8,10 @@ from __future__ import annotations
 import argparse
 
 from pghm.cli.options import INDEX, Integer
-from pghm.data.motion import MAX_FRAMES
 from pghm.errors import PghmError
 from pghm.io.export import FRONT_DISTANCE, export_posed_ply, parse_vector
 from pghm.io.outputs import check_output
+from pghm.motion.motion import MAX_FRAMES
 
 
 def _point(text: str) -> str:
@@ -43,10 +43,10 @@ def register(subparsers) -> None:
     )
     parser.add_argument("--identity", type=INDEX, default=0, help="identity of a prior's bank (default %(default)s)")
     parser.add_argument("--body-model-path", default=None)
-    parser.set_defaults(func=run)
+    parser.set_defaults(func=cmd_export)
 
 
-def run(args: argparse.Namespace) -> int:
+def cmd_export(args: argparse.Namespace) -> int:
     check_output(args.out, inputs=[args.avatar, args.pose, args.body_model_path])
     count = export_posed_ply(
         args.avatar, args.pose, args.frame, args.out, args.view, args.identity, args.body_model_path

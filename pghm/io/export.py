@@ -6,8 +6,8 @@ import math
 
 import torch
 
-from pghm.data.motion import MAX_TRANSLATION
 from pghm.errors import PghmError
+from pghm.motion.motion import MAX_TRANSLATION
 
 FRONT_DISTANCE = 3.0
 """Default baking view: this many metres in front of the posed root (+z, the body's front)."""
@@ -41,10 +41,10 @@ def export_posed_ply(
     FRONT_DISTANCE in front of the posed root). Returns the number of Gaussians written.
     """
     from pghm.body import load_body
-    from pghm.data.open_motion import open_motion
     from pghm.io.avatar import avatar_geometry, load_avatar
     from pghm.io.ply import write_ply
     from pghm.model.evaluator import CachedEvaluator
+    from pghm.motion.open_motion import open_motion
 
     avatar = load_avatar(avatar_path)
     avatar.check_identity(identity)

@@ -22,10 +22,10 @@ from PIL import Image
 from torch import Tensor, nn
 
 from pghm.body.model import BodyModel
-from pghm.data.subject import Frame, Subject, open_subjects, stated_pose_noise
 from pghm.errors import DatasetError, PghmError, listed
 from pghm.io.read_errors import IMAGE_READ_ERRORS
 from pghm.splat import Camera
+from pghm.subject import Frame, Subject, open_subjects, stated_pose_noise
 from pghm.train.pose_smoothing import smooth_track
 
 log = logging.getLogger(__name__)

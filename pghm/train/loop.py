@@ -28,6 +28,7 @@ import torch
 from torch import Tensor, nn
 from tqdm import tqdm
 
+from pghm._fault_injection import interrupt_point
 from pghm.body.pose import BodyPose
 from pghm.errors import DatasetError, PghmError
 from pghm.io.atomic import atomic_write_bytes
@@ -35,7 +36,6 @@ from pghm.io.torch_file import TorchFileError, load_torch_file
 from pghm.model.geometry import SubjectGeometry
 from pghm.model.pghm import PGHM
 from pghm.splat import Camera, render
-from pghm.test_hook import interrupt_point
 from pghm.train import distributed
 from pghm.train.background import BACKGROUND_KINDS, BLACK, WHITE, composite_render, composite_target, draw_backgrounds
 from pghm.train.data import PoseCorrections, Sample, TrainingData
@@ -338,6 +338,7 @@ def _all_finite(tensors) -> bool:
 
 
 def run_stage(
+    *,
     objective: AvatarObjective,
     trainable: list[nn.Parameter],
     optimizer: torch.optim.Optimizer,
@@ -349,7 +350,11 @@ def run_stage(
     extra: dict,
     description: str,
 ) -> LoopState:
-    """Run steps ``state.step`` .. ``config.steps`` - 1; returns the final state.
+    """Run steps ``state.step`` .. ``config.steps`` - 1 of one stage; returns the final state.
+
+    ``trainable`` are the parameters ``optimizer`` steps, ``geometry_of`` an identity's geometry,
+    ``extra`` what the checkpoint records beside the state (the stage, the kind), ``description``
+    the progress bar's label.
 
     Raises KeyboardInterrupt after saving a checkpoint when interrupted.
     """

@@ -21,14 +21,15 @@ import torch
 from conftest import TINY_MODEL
 from stress_kit import check, cli, one_error_line
 
-from pghm.data.subject import image_name
 from pghm.model import ModelConfig
+from pghm.subject import image_name
 from pghm.train import loop as loop_module
 from pghm.train.data import TrainingData
 from pghm.train.fit import FitConfig, fit
 from pghm.train.loop import LR_BACKOFF, LoopConfig, load_checkpoint
 from pghm.train.optim import LazyAdam
-from pghm.train.prior import PriorConfig, checkpoint_path, train_prior
+from pghm.train.prior import PriorConfig, train_prior
+from pghm.train.run_setup import checkpoint_path
 
 AREA = "training"
 GUARD_LINE = "non-finite loss, gradient or update; step skipped, learning rate x0.50"

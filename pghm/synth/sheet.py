@@ -10,8 +10,8 @@ import roma
 import torch
 from PIL import Image
 
-from pghm.data.subject import Subject, open_subjects
 from pghm.io.atomic import atomic_write_bytes
+from pghm.subject import Subject, open_subjects
 
 GAP = 4
 """Pixels of white between subjects and between the grid and the strip."""

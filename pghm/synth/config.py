@@ -14,9 +14,9 @@ from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Literal, get_args
 
-from pghm.data.motion import MAX_FPS, MAX_FRAMES, MIN_FPS
-from pghm.data.synth.poses import MOTION_KINDS
 from pghm.errors import PghmError
+from pghm.motion.motion import MAX_FPS, MAX_FRAMES, MIN_FPS
+from pghm.synth.poses import MOTION_KINDS
 
 Capture = Literal["multiview", "monocular"]
 MAX_IDENTITIES = 10_000
@@ -111,7 +111,7 @@ class SynthConfig:
 
     mono_motion: str = "walk"
     """Monocular: what the training frames show: "walk" (around the circle) or another of
-    :data:`~pghm.data.synth.poses.MOTION_KINDS` performed on the spot at the circle's centre
+    :data:`~pghm.synth.poses.MOTION_KINDS` performed on the spot at the circle's centre
     (capture-bench's check that the body fit's pose prior does not hurt other motions)."""
 
     pose_noise_deg: float = 2.0
@@ -134,8 +134,8 @@ class SynthConfig:
     """Cloth offsets of the mesh (loose sleeves, flares, skirts, hoods, hair volume)."""
 
     procedural_motions: bool = True
-    """Use :mod:`pghm.data.procedural` clips where that module offers the kind, else the
-    built-in ones of :mod:`pghm.data.synth.poses`."""
+    """Use :mod:`pghm.motion.procedural` clips where that module offers the kind, else the
+    built-in ones of :mod:`pghm.synth.poses`."""
 
     def validate(self) -> SynthConfig:
         """Raise :class:`PghmError` naming the first invalid field and its value; return self.

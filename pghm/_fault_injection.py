@@ -1,5 +1,8 @@
-"""Test hooks (fault injection), off unless their environment variables are set: interruption
-and kill tests choose the moment they interrupt a command instead of racing the clock.
+"""A test hook: lets tests inject faults (a Ctrl-C, a kill mid-save) into running commands.
+
+Private: nothing outside the test suite sets its environment variables, and with them unset
+every function here returns at once. Interruption and kill tests use it to choose the moment
+they interrupt a command instead of racing the clock.
 
 **Ctrl-C or SIGTERM at a named point.**
 When the environment variable ``PGHM_TEST_INTERRUPT_AT`` equals a point's name, reaching
@@ -9,7 +12,7 @@ shutdown or a job scheduler sends). Unset (always, outside tests) it does nothin
 
 Points: ``startup`` (pghm.cli.main, before the subcommand modules and torch are imported),
 ``render-frame`` (pghm.render.job, after the first frame is written), ``synth-subjects``
-(pghm.data.synth.generate, after the images are rendered, before the subjects' files are
+(pghm.synth.generate, after the images are rendered, before the subjects' files are
 written), ``train-step`` (pghm.train.loop, after each step and its checkpoint).
 tests/stress/test_adversarial.py uses each.
 
