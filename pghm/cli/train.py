@@ -153,6 +153,12 @@ def register(subparsers) -> None:
         help="L of the avatar's UV maps, a power of two; another L than the prior's carries its weights over "
         "((L / L_prior)^2 times the Gaussians; default: the prior's)",
     )
+    fit.add_argument(
+        "--detail",
+        action="store_true",
+        help="add a detail layer: Gaussians at twice the UV resolution whose colours stage 2 trains texel by "
+        "texel (4 times the Gaussians; docs/training.md, 'Detail layer')",
+    )
     _common(fit, fit_defaults.stage1)
     fit.set_defaults(func=run_fit)
 
@@ -246,6 +252,7 @@ def run_fit(args: argparse.Namespace) -> int:
         pose_smoothing=args.pose_smoothing,
         track_steps=args.track_steps,
         uv_resolution=args.uv_resolution,
+        detail=args.detail,
         lpips=not args.no_lpips,
         body_model_path=args.body_model_path,
     )

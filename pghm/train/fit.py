@@ -6,7 +6,8 @@ full-resolution latent (C x L x L, bypassing the Feature Decoder), initialised w
 decoded mean of the bank's latents, and optimised alone; the network is frozen.
 Stage 2, joint tuning: the latent and the U-Net (E_u, E_p, E_v and the decoders) are
 optimised together, with per-frame pose corrections when ``refine_poses``; the avatar keeps
-them as its pose track (:mod:`pghm.train.pose_track`).
+them as its pose track (:mod:`pghm.train.pose_track`); with a detail layer (``detail``) its
+per-texel residuals too (:mod:`pghm.model.detail`).
 Then, for poses stated noisier than the synthetic data's (a capture) whose frames stage 2 visits
 too rarely, the track is settled: every training frame's correction refined against its image
 with the avatar frozen (:mod:`pghm.train.test_poses`; :func:`track_steps`).
@@ -72,6 +73,10 @@ TRACK_MIN_VISITS = 20
 corrections need no settling: at 10 visits (a 100-frame capture) settling lifts the training frames
 rendered with the track by 0.70 dB; at 26 (the 40-frame real video) it changes nothing (-0.15 dB)."""
 
+DETAIL_LR = 1e-2
+"""Default learning rate of the detail layer's residuals (colour logits, and the lift before tanh):
+Adam moves a texel's colour logit by about this much per step it is seen."""
+
 FIT_SILHOUETTE_WEIGHT = 4.0
 """Default weight of the silhouette term when fitting (the prior trains with 1.0,
 :data:`pghm.train.background.SILHOUETTE_WEIGHT`). On the shipped subject's novel poses, 4 against 1
@@ -124,6 +129,11 @@ class FitConfig:
     """L of the avatar's UV maps; None: the prior's. Another L carries the prior's weights over
     (:meth:`PGHM.at_resolution`): (L / L_prior)^2 times as many Gaussians, finer detail, longer
     fits and slower viewing (docs/training.md, "Resolution, steps and image size")."""
+    detail: bool = False
+    """Add a detail layer (:mod:`pghm.model.detail`): Gaussians on the 2L texels, their colour
+    residuals and lifts trained in stage 2 at ``detail_lr`` (docs/training.md, "Detail layer")."""
+    detail_lr: float = DETAIL_LR
+    """Adam learning rate of the detail layer's residuals in stage 2."""
     split: str = "train"
     """The subject's split the avatar is fitted on (:data:`pghm.data.subject.ALL_SPLIT`: every
     image, as ``pghm capture --polish`` does to align the held-out frames' poses)."""
@@ -170,6 +180,13 @@ def network_parameters(model: PGHM) -> list[nn.Parameter]:
     return [p for part in NETWORK_PARTS if hasattr(model, part) for p in getattr(model, part).parameters()]
 
 
+def detail_group(model: PGHM, config: FitConfig) -> list[dict]:
+    """Stage 2's optimiser group of the detail layer's residuals (none without a layer), trainable."""
+    if model.detail is None:
+        return []
+    return [{"params": [model.detail.maps.requires_grad_(True)], "lr": config.detail_lr}]
+
+
 def _checkpoint_stage(payload: dict, path: Path) -> int:
     """The stage (1 or 2) a fit checkpoint was saved in; PghmError for another command's checkpoint."""
     extra = payload.get("extra")
@@ -195,7 +212,7 @@ def fit(
     config = config or FitConfig()
     if config.track_steps is not None and config.track_steps < 0:
         raise PghmError(f"track_steps must be >= 0, got {config.track_steps}")
-    for name in ("latent_lr", "network_lr", "pose_lr"):
+    for name in ("latent_lr", "network_lr", "pose_lr", "detail_lr"):
         if getattr(config, name) is not None:
             check_learning_rate(name, getattr(config, name))
     out = Path(out)
@@ -225,6 +242,8 @@ def fit(
         if config.uv_resolution not in (None, model.config.uv_resolution):
             model = model.at_resolution(config.uv_resolution)
         prior_source = recorded_path(prior) if not isinstance(prior, Avatar) else "(in memory)"
+    if config.detail:
+        model = model.with_detail()
     model.train()
     for p in model.parameters():
         p.requires_grad_(False)
@@ -251,6 +270,7 @@ def fit(
     for p in network:
         p.requires_grad_(True)
     groups = [{"params": [latent], "lr": config.latent_lr}, {"params": network, "lr": config.network_lr}]
+    groups += detail_group(model, config)
     if corrections is not None:
         groups.append({"params": list(corrections.parameters()), "lr": config.pose_lr, "lazy": True})
     stage2_opt = LazyAdam(groups)

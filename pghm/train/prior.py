@@ -18,7 +18,7 @@ from pghm.body import load_body
 from pghm.errors import PghmError
 from pghm.io.avatar import Avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig, subject_geometry
-from pghm.model.geometry import SubjectGeometry
+from pghm.model.geometry import SubjectGeometry, detail_atlas
 from pghm.train import distributed
 from pghm.train.background import SILHOUETTE_WEIGHT, TRAINING_BACKGROUND
 from pghm.train.data import TrainingData
@@ -84,12 +84,15 @@ class GeometryCache:
     def __init__(self, data: TrainingData, config: ModelConfig, body_model_path: str | None) -> None:
         self.body = load_body(data.body_name, body_model_path)
         self.atlas = build_atlas(self.body, config.uv_resolution)
+        self.detail_atlas = detail_atlas(self.body, config)
         self.data = data
         self._cache: dict[int, SubjectGeometry] = {}
 
     def __call__(self, identity: int) -> SubjectGeometry:
         if identity not in self._cache:
-            self._cache[identity] = subject_geometry(self.body, self.atlas, self.data.shape(identity))
+            self._cache[identity] = subject_geometry(
+                self.body, self.atlas, self.data.shape(identity), self.detail_atlas
+            )
         return self._cache[identity]
 
 
