@@ -6,6 +6,7 @@ import argparse
 import json
 import logging
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from pghm.cli.options import MAX_INDEX, POSITIVE_STEPS, SEED, STEPS, Integer, Real
@@ -154,10 +155,12 @@ def register(subparsers) -> None:
         "((L / L_prior)^2 times the Gaussians; default: the prior's)",
     )
     fit.add_argument(
-        "--detail",
-        action="store_true",
-        help="add a detail layer: Gaussians at twice the UV resolution whose colours stage 2 trains texel by "
-        "texel (4 times the Gaussians; docs/training.md, 'Detail layer')",
+        "--detail-steps",
+        type=STEPS,
+        default=fit_defaults.detail.steps,
+        help="steps of a last stage that trains a detail layer: Gaussians at twice the UV resolution whose "
+        "colours are trained texel by texel (4 times the Gaussians; docs/training.md, 'Detail layer'); "
+        "0: none (default %(default)s)",
     )
     _common(fit, fit_defaults.stage1)
     fit.set_defaults(func=run_fit)
@@ -252,7 +255,7 @@ def run_fit(args: argparse.Namespace) -> int:
         pose_smoothing=args.pose_smoothing,
         track_steps=args.track_steps,
         uv_resolution=args.uv_resolution,
-        detail=args.detail,
+        detail=replace(stages[1], steps=args.detail_steps),
         lpips=not args.no_lpips,
         body_model_path=args.body_model_path,
     )

@@ -6,11 +6,11 @@ full-resolution latent (C x L x L, bypassing the Feature Decoder), initialised w
 decoded mean of the bank's latents, and optimised alone; the network is frozen.
 Stage 2, joint tuning: the latent and the U-Net (E_u, E_p, E_v and the decoders) are
 optimised together, with per-frame pose corrections when ``refine_poses``; the avatar keeps
-them as its pose track (:mod:`pghm.train.pose_track`); with a detail layer (``detail``) its
-per-texel residuals too (:mod:`pghm.model.detail`).
+them as its pose track (:mod:`pghm.train.pose_track`).
 Then, for poses stated noisier than the synthetic data's (a capture) whose frames stage 2 visits
 too rarely, the track is settled: every training frame's correction refined against its image
 with the avatar frozen (:mod:`pghm.train.test_poses`; :func:`track_steps`).
+Last, when ``detail`` has steps, a detail layer trains on the frozen avatar (:mod:`pghm.train.detail`).
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from pghm.model import PGHM, ModelConfig
 from pghm.model.pghm import COMPONENTS
 from pghm.train.background import TRAINING_BACKGROUND
 from pghm.train.data import ESTIMATOR_ROTATION_SIGMA, TrainingData
+from pghm.train.detail import DETAIL_LR, train_detail
 from pghm.train.loop import (
     AvatarObjective,
     LoopConfig,
@@ -72,10 +73,6 @@ TRACK_MIN_VISITS = 20
 """Stage 2 visits per training frame (its steps x images per step / training images) from which its
 corrections need no settling: at 10 visits (a 100-frame capture) settling lifts the training frames
 rendered with the track by 0.70 dB; at 26 (the 40-frame real video) it changes nothing (-0.15 dB)."""
-
-DETAIL_LR = 1e-2
-"""Default learning rate of the detail layer's residuals (colour logits, and the lift before tanh):
-Adam moves a texel's colour logit by about this much per step it is seen."""
 
 FIT_SILHOUETTE_WEIGHT = 4.0
 """Default weight of the silhouette term when fitting (the prior trains with 1.0,
@@ -129,11 +126,11 @@ class FitConfig:
     """L of the avatar's UV maps; None: the prior's. Another L carries the prior's weights over
     (:meth:`PGHM.at_resolution`): (L / L_prior)^2 times as many Gaussians, finer detail, longer
     fits and slower viewing (docs/training.md, "Resolution, steps and image size")."""
-    detail: bool = False
-    """Add a detail layer (:mod:`pghm.model.detail`): Gaussians on the 2L texels, their colour
-    residuals and lifts trained in stage 2 at ``detail_lr`` (docs/training.md, "Detail layer")."""
+    detail: LoopConfig = field(default_factory=lambda: _fit_stage(0))
+    """The detail stage (:mod:`pghm.train.detail`); 0 steps: no detail layer, the paper's model
+    (docs/training.md, "Detail layer")."""
     detail_lr: float = DETAIL_LR
-    """Adam learning rate of the detail layer's residuals in stage 2."""
+    """Adam learning rate of the detail layer's residuals."""
     split: str = "train"
     """The subject's split the avatar is fitted on (:data:`pghm.data.subject.ALL_SPLIT`: every
     image, as ``pghm capture --polish`` does to align the held-out frames' poses)."""
@@ -180,17 +177,12 @@ def network_parameters(model: PGHM) -> list[nn.Parameter]:
     return [p for part in NETWORK_PARTS if hasattr(model, part) for p in getattr(model, part).parameters()]
 
 
-def detail_group(model: PGHM, config: FitConfig) -> list[dict]:
-    """Stage 2's optimiser group of the detail layer's residuals (none without a layer), trainable."""
-    if model.detail is None:
-        return []
-    return [{"params": [model.detail.maps.requires_grad_(True)], "lr": config.detail_lr}]
-
-
 def _checkpoint_stage(payload: dict, path: Path) -> int:
     """The stage (1 or 2) a fit checkpoint was saved in; PghmError for another command's checkpoint."""
     extra = payload.get("extra")
     stage = extra.get("stage") if isinstance(extra, dict) else None
+    if stage == 3:
+        raise PghmError(f"{path}: a checkpoint of the detail stage, which does not resume; run the fit again")
     if type(stage) is not int or stage not in (1, 2):
         raise PghmError(f"{path}: not a checkpoint of pghm fit (from train-prior?); cannot --resume from it")
     return stage
@@ -227,6 +219,7 @@ def fit(
         config = replace(config, track_steps=track_steps(data.pose_noise[0][0], visits))
     check_step_memory(data, config.stage1, "fit stage 1")
     check_step_memory(data, config.stage2, "fit stage 2")
+    check_step_memory(data, config.detail, "fit detail stage")
     if isinstance(prior, ModelConfig):
         torch.manual_seed(config.stage1.seed)
         if config.uv_resolution is not None:
@@ -242,8 +235,6 @@ def fit(
         if config.uv_resolution not in (None, model.config.uv_resolution):
             model = model.at_resolution(config.uv_resolution)
         prior_source = recorded_path(prior) if not isinstance(prior, Avatar) else "(in memory)"
-    if config.detail:
-        model = model.with_detail()
     model.train()
     for p in model.parameters():
         p.requires_grad_(False)
@@ -270,7 +261,6 @@ def fit(
     for p in network:
         p.requires_grad_(True)
     groups = [{"params": [latent], "lr": config.latent_lr}, {"params": network, "lr": config.network_lr}]
-    groups += detail_group(model, config)
     if corrections is not None:
         groups.append({"params": list(corrections.parameters()), "lr": config.pose_lr, "lazy": True})
     stage2_opt = LazyAdam(groups)
@@ -324,6 +314,12 @@ def fit(
             )
             avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
         avatar.pose_track = learned_track(corrections, data)
+    if config.detail.steps:
+        avatar.model, detail = train_detail(
+            model, avatar.latent, corrections, data, config.detail, config.detail_lr, lpips, ckpt, config.body_model_path
+        )
+        avatar.metadata["steps"]["detail"] = detail.step
+        avatar.metadata["detail_seconds"] = round(detail.seconds, 1)
     save_avatar(out, avatar)
     ckpt.unlink(missing_ok=True)  # the avatar holds the result; a stale checkpoint would only mislead --resume
     return avatar
