@@ -17,7 +17,7 @@ from pghm.data.procedural import procedural_motion
 from pghm.errors import AvatarFileError
 from pghm.io.avatar import Avatar, avatar_geometry, avatar_payload, load_avatar, save_avatar
 from pghm.io.ply import read_ply
-from pghm.model.detail import DETAIL_FACTOR, upsample
+from pghm.model.detail import DETAIL_CHANNELS, DETAIL_FACTOR, upsample
 from pghm.model.evaluator import CachedEvaluator
 from pghm.render import AvatarDriver
 from pghm.splat import Camera, render
@@ -30,7 +30,7 @@ BILINEAR = {0.0625, 0.1875, 0.5625}
 
 
 def with_detail(avatar: Avatar, maps: torch.Tensor | None = None) -> Avatar:
-    """``avatar`` with a detail layer, zero or holding ``maps`` (1, 4, 2L, 2L)."""
+    """``avatar`` with a detail layer, zero or holding ``maps`` (1, 5, 2L, 2L)."""
     model = avatar.model.with_detail().eval()
     if maps is not None:
         model.detail.maps.data = maps
@@ -39,7 +39,7 @@ def with_detail(avatar: Avatar, maps: torch.Tensor | None = None) -> Avatar:
 
 def random_maps(config, seed: int = 0) -> torch.Tensor:
     size = DETAIL_FACTOR * config.uv_resolution
-    return torch.randn(1, 4, size, size, generator=torch.Generator().manual_seed(seed))
+    return torch.randn(1, DETAIL_CHANNELS, size, size, generator=torch.Generator().manual_seed(seed))
 
 
 @pytest.fixture(scope="module")
@@ -160,7 +160,7 @@ def test_round_trip_keeps_the_layer_and_its_gaussians(avatar, pose, tmp_path):
     ("damage", "message"),
     [
         (lambda maps: maps.fill_(math.nan), "'weights.detail.maps' has non-finite values"),
-        (lambda maps: maps[:, :3], "'weights.detail.maps' has shape (1, 3, 128, 128), expected (1, 4, 128, 128)"),
+        (lambda maps: maps[:, :3], "'weights.detail.maps' has shape (1, 3, 128, 128), expected (1, 5, 128, 128)"),
     ],
 )
 def test_a_bad_layer_is_refused_in_one_line_naming_the_file(avatar, tmp_path, damage, message):
@@ -180,7 +180,7 @@ def test_a_layer_in_a_version_1_file_or_a_prior_is_refused(avatar, tmp_path):
         load_avatar(tmp_path / "old.pt")
     prior = avatar_payload(development_avatar(SMALL, kind="prior", num_identities=2))
     prior["config"]["detail"] = True
-    prior["weights"]["detail.maps"] = torch.zeros(1, 4, 128, 128)
+    prior["weights"]["detail.maps"] = torch.zeros(1, 5, 128, 128)
     torch.save(prior, tmp_path / "prior.pt")
     with pytest.raises(AvatarFileError, match="prior file must not hold a detail layer"):
         load_avatar(tmp_path / "prior.pt")
@@ -194,7 +194,7 @@ def test_driver_export_and_eval_use_the_layer(avatar, pose, body, tmp_path, tiny
     from pghm.train.evaluate import render_images
 
     maps = random_maps(SMALL)
-    maps[:, 0:3] = 30.0  # colour logits far up: every Gaussian white, whatever the network says
+    maps[:, 1:4] = 30.0  # colour logits far up: every Gaussian white, whatever the network says
     detailed = with_detail(avatar, maps)
     path = tmp_path / "detail.pt"
     save_avatar(path, detailed)

@@ -6,9 +6,15 @@ the texels of a 2L atlas instead (four times as many, each half the size) and gi
 trainable colour and a small lift along the surface normal, optimised directly (no network):
 
     X_2L     = upsample(X_L)                       every gathered network output (pre-activation)
-    c        = sigmoid(U_c(2L) + D_c),   D_c = detail colour-logit residual (3 per 2L texel)
-    x        = x_surface(2L) + offsets(2L) + a_d tanh(D_h) n_theta        (a_d: max_detail_offset)
-    s        = base(2L) exp(ln r tanh(U_s(2L)))                           (base: the 2L texel's length)
+    c        = sigmoid(U_c(2L) + D_c)                  D_c: colour-logit residual (3 per 2L texel)
+    s        = base(L) exp(ln r tanh(U_s(2L) + D_s))   D_s: log-scale residual (1)
+    x        = x_surface(2L) + offsets(2L) + a_d tanh(D_h) n_theta        D_h: lift (1), a_d: max_detail_offset
+
+``base(L)`` is the L texel's base scale, upsampled like the rest: a zero layer draws Gaussians as
+large as the L model's, four times as densely, so its outline is the L model's (Gaussians of the 2L
+texel's own size, half as large, thin the outline by half an L Gaussian: on the real video the
+held-out frames lost 1 dB before any training). Where detail pays, the trained D_s shrinks them
+(down to 1/r, the same bound as ever).
 
 ``upsample`` is bilinear in UV, as ``F.interpolate(scale_factor=2, align_corners=False)`` would
 be inside a chart: a 2L texel centre lies a quarter of an L texel from its four nearest L texel
@@ -18,7 +24,7 @@ output is never trained, and across a seam lies another part of the body) and re
 their weights; a 2L texel with none of its four neighbours in its chart takes its chart's
 nearest L texel. On a field linear in UV the interior texels are therefore exact.
 
-The residuals live in one dense map (1, 4, 2L, 2L) (zero at invalid texels), so their shape
+The residuals live in one dense map (1, 5, 2L, 2L) (zero at invalid texels), so their shape
 follows from the model config alone and the avatar file validates them like every weight.
 """
 
@@ -35,8 +41,11 @@ from pghm.uv.maps import TexelSurface, barycentric_blend, posed_points
 
 DETAIL_FACTOR = 2
 """The detail atlas's resolution over the network's L."""
-DETAIL_CHANNELS = 4
-"""Detail map channels: colour-logit residual (3), lift along the normal before tanh (1)."""
+DETAIL_CHANNELS = 5
+"""Detail map channels: log-scale residual (1), colour-logit residual (3) (D_static's channels 3..6),
+lift along the normal before tanh (1)."""
+LIFT_CHANNEL = 4
+"""The detail map channel of the lift."""
 NEIGHBOURS = 4
 """L texels each 2L texel blends (bilinear)."""
 
@@ -48,7 +57,7 @@ class DetailGeometry:
     Attributes:
         atlas: the 2L atlas (N2 valid texels).
         surface: its canonical texel surface.
-        texel_length: (N2,) surface length one 2L texel spans, metres.
+        texel_length: (N2,) the L texel's surface length, upsampled: the base scale's (module docstring).
         source: (N2, 4) long L texel indices each 2L texel blends.
         weights: (N2, 4) their weights (sum 1; 0 for a neighbour left out).
     """
@@ -98,7 +107,7 @@ def pose_detail(surface: TexelSurface, transforms: Tensor) -> DetailSkinned:
 
 
 class DetailLayer(nn.Module):
-    """The trainable residual map ``maps`` (1, 4, 2L, 2L), zero at creation (a zero layer adds nothing
+    """The trainable residual map ``maps`` (1, 5, 2L, 2L), zero at creation (a zero layer adds nothing
     but the finer sampling)."""
 
     def __init__(self, uv_resolution: int) -> None:

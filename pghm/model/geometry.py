@@ -87,15 +87,16 @@ def subject_geometry(
     if not (bool(torch.isfinite(rest.vertices).all()) and bool(torch.isfinite(rest.joints).all())):
         values = [round(v, 4) for v in shape.tolist()]
         raise PghmError(f"the {body.name} body with shape {values} has non-finite vertices")
+    texel_length = texel_lengths(rest.vertices, body.faces, body.uv_coords, body.uv_faces, atlas)
     return SubjectGeometry(
         atlas=atlas,
         surface=texel_surface(body, atlas, rest),
         joints=rest.joints,
         parents=list(body.parents),
-        texel_length=texel_lengths(rest.vertices, body.faces, body.uv_coords, body.uv_faces, atlas),
+        texel_length=texel_length,
         shape=shape.detach().clone(),
         body_name=body.name,
-        detail=None if detail_atlas is None else _detail_geometry(body, atlas, detail_atlas, rest),
+        detail=None if detail_atlas is None else _detail_geometry(body, atlas, detail_atlas, rest, texel_length),
     )
 
 
@@ -104,12 +105,14 @@ def detail_atlas(body: BodyModel, config: ModelConfig) -> UVAtlas | None:
     return build_atlas(body, DETAIL_FACTOR * config.uv_resolution) if config.detail else None
 
 
-def _detail_geometry(body: BodyModel, atlas: UVAtlas, detail_atlas: UVAtlas, rest: RestBody) -> DetailGeometry:
+def _detail_geometry(
+    body: BodyModel, atlas: UVAtlas, detail_atlas: UVAtlas, rest: RestBody, texel_length: Tensor
+) -> DetailGeometry:
     source, weights = upsampling(atlas, detail_atlas)
     return DetailGeometry(
         atlas=detail_atlas,
         surface=texel_surface(body, detail_atlas, rest),
-        texel_length=texel_lengths(rest.vertices, body.faces, body.uv_coords, body.uv_faces, detail_atlas),
+        texel_length=(texel_length[source] * weights.to(texel_length.dtype)).sum(-1),
         source=source,
         weights=weights,
     )

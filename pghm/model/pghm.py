@@ -45,7 +45,7 @@ from pghm.body.pose import BodyPose
 from pghm.body.skinning import blend_transform_deltas, skin_directions
 from pghm.errors import PghmError
 from pghm.model.config import ModelConfig
-from pghm.model.detail import DetailLayer, DetailSkinned, pose_detail, upsample
+from pghm.model.detail import LIFT_CHANNEL, DetailLayer, DetailSkinned, pose_detail, upsample
 from pghm.model.gaussians import Gaussians
 from pghm.model.geometry import SubjectGeometry
 from pghm.model.networks import FeatureDecoder, Pyramid, PyramidDecoder, PyramidEncoder
@@ -374,8 +374,10 @@ class PGHM(nn.Module):
         static, pose_out, view_offset = (
             None if values is None else upsample(values, detail) for values in (static, pose_out, view_offset)
         )
-        residual = gather_from_map(self.detail.maps, detail.atlas)  # (1, N2, 4)
-        lift = self.config.max_detail_offset * torch.tanh(residual[..., 3:4]) * skinned.detail.normals
+        residual = gather_from_map(self.detail.maps, detail.atlas)  # (1, N2, 5)
+        # The log-scale and colour residuals join D_static's channels 3..6; the offsets get none.
+        static = static + F.pad(residual[..., :LIFT_CHANNEL], (STATIC_CHANNELS - LIFT_CHANNEL, 0))
+        lift = self.config.max_detail_offset * torch.tanh(residual[..., LIFT_CHANNEL:]) * skinned.detail.normals
         return self._gaussians(
             static,
             pose_out,
@@ -383,7 +385,6 @@ class PGHM(nn.Module):
             skinned.detail.surface_points + lift,
             skinned.detail.rotation_delta,
             detail.texel_length,
-            residual[..., 0:3],
         )
 
     def _gaussians(
@@ -394,11 +395,10 @@ class PGHM(nn.Module):
         surface_points: Tensor,
         rotation_delta: Tensor,
         texel_length: Tensor,
-        color_residual: Tensor | None = None,
     ) -> AvatarOutput:
         """The paper's activations (module docstring) on per-texel network outputs (B, N, C) at
-        texels posed at ``surface_points`` (B, N, 3) with ``rotation_delta`` (B, N, 3, 3), of
-        ``texel_length`` (N,); ``color_residual`` (1 or B, N, 3) is added to the colour logits."""
+        texels posed at ``surface_points`` (B, N, 3) with ``rotation_delta`` (B, N, 3, 3), whose
+        base scale follows ``texel_length`` (N,)."""
         config = self.config
         log_range = math.log(config.scale_factor_range)
         static_offset = config.max_static_offset * torch.tanh(static[..., 0:3])
@@ -409,7 +409,7 @@ class PGHM(nn.Module):
         else:
             pose_offset = torch.zeros_like(static_offset)
             dynamic_log_scale = static_log_scale
-        color_logit = static[..., 4:7] if color_residual is None else static[..., 4:7] + color_residual
+        color_logit = static[..., 4:7]
         dynamic_logit = color_logit + view_offset if view_offset is not None else color_logit
         base = (config.base_scale_factor * texel_length).clamp(config.min_scale, config.max_scale)
         base = base.to(static.dtype)
