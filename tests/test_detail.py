@@ -13,7 +13,7 @@ from conftest import SMALL_MODEL as SMALL
 
 from pghm.body import BodyPose
 from pghm.cli.main import main
-from pghm.data.procedural import procedural_motion
+from pghm.motion.procedural import procedural_motion
 from pghm.errors import AvatarFileError
 from pghm.io.avatar import Avatar, avatar_geometry, avatar_payload, load_avatar, save_avatar
 from pghm.io.ply import read_ply

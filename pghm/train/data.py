@@ -21,10 +21,10 @@ from PIL import Image
 from torch import Tensor, nn
 
 from pghm.body.model import BodyModel
-from pghm.data.subject import Dataset, Frame, Subject, stated_pose_noise
 from pghm.errors import DatasetError, PghmError
 from pghm.io.read_errors import IMAGE_READ_ERRORS
 from pghm.splat import Camera
+from pghm.subject import Dataset, Frame, Subject, stated_pose_noise
 from pghm.train.pose_smoothing import smooth_track
 
 log = logging.getLogger(__name__)

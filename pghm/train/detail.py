@@ -22,7 +22,7 @@ from torch import Tensor, nn
 from pghm.model.pghm import PGHM
 from pghm.train.data import PoseCorrections, TrainingData
 from pghm.train.loop import AvatarObjective, LoopConfig, LoopState, run_stage
-from pghm.train.prior import GeometryCache
+from pghm.train.run_setup import GeometryCache
 
 DETAIL_LR = 1e-2
 """Default Adam learning rate of the residuals (colour logits, and the lift before tanh): a texel's
