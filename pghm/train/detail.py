@@ -55,7 +55,16 @@ def train_detail(
     geometries = GeometryCache(data, detailed.config, body_model_path)
     optimizer = torch.optim.Adam([maps], lr=lr)
     state = run_stage(
-        objective, [maps], optimizer, data, geometries, config, checkpoint, LoopState(), {"stage": 3}, "fit: detail"
+        objective=objective,
+        trainable=[maps],
+        optimizer=optimizer,
+        data=data,
+        geometry_of=geometries,
+        config=config,
+        checkpoint=checkpoint,
+        state=LoopState(),
+        extra={"stage": 3},
+        description="fit: detail",
     )
     maps.requires_grad_(False)
     return detailed, state
