@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import argparse
 
-from pghm.cli.options import INDEX, Integer
+from pghm.cli.options import INDEX, Integer, add_device_option
 from pghm.io.export import FRONT_DISTANCE, export_posed_ply
 from pghm.io.outputs import check_output
 from pghm.motion.motion import MAX_FRAMES
@@ -32,13 +32,17 @@ def register(subparsers) -> None:
     )
     parser.add_argument("--identity", type=INDEX, default=0, help="identity of a prior's bank (default %(default)s)")
     parser.add_argument("--body-model-path", default=None)
+    add_device_option(parser)
     parser.set_defaults(func=cmd_export)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    from pghm.device import resolve_device
+
     check_output(args.out, inputs=[args.avatar, args.pose])
+    device = resolve_device(args.device)
     count = export_posed_ply(
-        args.avatar, args.pose, args.frame, args.out, args.view, args.identity, args.body_model_path
+        args.avatar, args.pose, args.frame, args.out, args.view, args.identity, args.body_model_path, device
     )
     print(f"wrote {args.out}: {count} Gaussians")
     return 0

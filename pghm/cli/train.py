@@ -9,7 +9,16 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from pghm.cli.options import MAX_INDEX, POSITIVE_STEPS, SEED, STEPS, Integer, Real
+from pghm.cli.options import (
+    MAX_INDEX,
+    POSITIVE_STEPS,
+    SEED,
+    STEPS,
+    Integer,
+    Real,
+    add_device_option,
+    rendering_device,
+)
 from pghm.cli.render import parse_colour
 from pghm.errors import PghmError
 from pghm.io.outputs import check_output
@@ -100,6 +109,7 @@ def _common(parser: argparse.ArgumentParser, loop: LoopConfig) -> None:
     )
     parser.add_argument("--no-lpips", action="store_true", help="leave the LPIPS term out even if its weights exist")
     parser.add_argument("--body-model-path", default=None, help="your SMPL-X model file, for SMPL-X data")
+    add_device_option(parser)
 
 
 def register(subparsers) -> None:
@@ -193,6 +203,7 @@ def register(subparsers) -> None:
         help="behind render and ground truth: white (default, the paper's), black, r,g,b in [0, 1] or #rrggbb",
     )
     evaluate.add_argument("--body-model-path", default=None)
+    add_device_option(evaluate)
     evaluate.set_defaults(func=cmd_eval)
 
 
@@ -204,6 +215,7 @@ def cmd_train_prior(args: argparse.Namespace) -> int:
     from pghm.train.prior import train_prior
 
     check_output(args.out, inputs=[args.data_dir, args.body_model_path])
+    device = rendering_device(args.device)
     _logging()
     model = ModelConfig(uv_resolution=args.uv_resolution, latent_channels=args.latent_channels, head=args.head)
     loop = LoopConfig(
@@ -224,7 +236,7 @@ def cmd_train_prior(args: argparse.Namespace) -> int:
         body_model_path=args.body_model_path,
         max_identities=args.identities,
     )
-    avatar = train_prior(args.data_dir, args.out, config, resume=args.resume)
+    avatar = train_prior(args.data_dir, args.out, config, resume=args.resume, device=device)
     print(
         f"wrote {args.out}: {avatar.metadata['identities']} identities, "
         f"{avatar.metadata['steps']} steps, {avatar.metadata['seconds']} s"
@@ -236,6 +248,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
     from pghm.train.fit import fit
 
     check_output(args.out, inputs=[args.subject_dir, args.prior, args.body_model_path])
+    device = rendering_device(args.device)
     _logging()
     stages = [
         LoopConfig(
@@ -260,7 +273,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         body_model_path=args.body_model_path,
     )
     prior = ModelConfig() if args.prior == "scratch" else args.prior
-    avatar = fit(args.subject_dir, prior, args.out, config, resume=args.resume)
+    avatar = fit(args.subject_dir, prior, args.out, config, resume=args.resume, device=device)
     print(f"wrote {args.out}: {avatar.metadata['steps']} steps, {avatar.metadata['seconds']} s")
     return 0
 
@@ -275,6 +288,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     check_output(strip, inputs=inputs, option="--strip")
     if Path(report).resolve() == Path(strip).resolve():
         raise PghmError(f"--report and --strip are the same file ({report}); give two names")
+    device = rendering_device(args.device)
     result = evaluate(
         args.avatar,
         args.subject_dir,
@@ -286,6 +300,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         background=args.background,
         refine_poses=args.refine_poses,
         fit_poses=args.fit_poses,
+        device=device,
     )
     print(json.dumps(result.summary()))
     print(f"wrote {report} and {strip}")

@@ -25,13 +25,14 @@ from __future__ import annotations
 import io
 import json
 import operator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from pghm.device import move
 from pghm.errors import AvatarFileError, PghmError
 from pghm.io.atomic import atomic_write_bytes
 from pghm.io.torch_file import TorchFileError, load_torch_file
@@ -144,6 +145,16 @@ class Avatar:
     latent: Tensor | None = None
     metadata: dict = field(default_factory=dict)
     pose_track: PoseTrack | None = None
+
+    @property
+    def device(self) -> torch.device:
+        """Where the network (and an avatar's latent) live; files are written from the CPU."""
+        return self.model.identity_bank.device
+
+    def to(self, device: torch.device | str) -> Avatar:
+        """This avatar with its network (moved in place) and latent on ``device``."""
+        latent = None if self.latent is None else self.latent.to(device)
+        return replace(self, model=self.model.to(device), latent=latent)
 
     def identity_map(self, index: int = 0) -> Tensor:
         """F (1, C, L, L): the personal latent of an avatar, or identity ``index`` of a prior."""
@@ -391,7 +402,7 @@ def load_avatar(path: str | Path) -> Avatar:
 
 
 def avatar_geometry(avatar: Avatar, index: int = 0, body_model_path: str | None = None):
-    """The :class:`~pghm.model.geometry.SubjectGeometry` of identity ``index`` of ``avatar``.
+    """The :class:`~pghm.model.geometry.SubjectGeometry` of identity ``index`` of ``avatar``, on its device.
 
     Args:
         avatar: a loaded avatar or prior.
@@ -405,4 +416,4 @@ def avatar_geometry(avatar: Avatar, index: int = 0, body_model_path: str | None 
     body = load_body(avatar.body_name, body_model_path)
     config = avatar.model.config
     atlas = build_atlas(body, config.uv_resolution)
-    return subject_geometry(body, atlas, avatar.shape_of(index), detail_atlas(body, config))
+    return move(subject_geometry(body, atlas, avatar.shape_of(index), detail_atlas(body, config)), avatar.device)

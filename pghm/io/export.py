@@ -28,32 +28,36 @@ def export_posed_ply(
     view: str | None = None,
     identity: int = 0,
     body_model_path: str | None = None,
+    device: torch.device | str = "cpu",
 ) -> int:
     """Write the dynamic Gaussians of ``avatar_path`` in frame ``frame`` of ``pose_source``.
 
     The view-dependent colour is baked for a camera centred at ``view`` ("X,Y,Z"; default
-    FRONT_DISTANCE in front of the posed root). Returns the number of Gaussians written.
+    FRONT_DISTANCE in front of the posed root). The network runs on ``device``. Returns the
+    number of Gaussians written.
     """
+    from pghm.device import move
+
     from pghm.body import load_body
     from pghm.io.avatar import avatar_geometry, load_avatar
     from pghm.io.ply import write_ply
     from pghm.model.evaluator import CachedEvaluator
     from pghm.motion.open_motion import open_motion
 
-    avatar = load_avatar(avatar_path)
+    avatar = load_avatar(avatar_path).to(device)
     avatar.check_identity(identity)
     body = load_body(avatar.body_name, body_model_path)
     motion = open_motion(pose_source, body, avatar.shape_of(identity), avatar.pose_track)
     if not 0 <= frame < motion.num_frames:
         raise PghmError(f"--frame {frame} is outside the motion's {motion.num_frames} frames")
-    pose = motion.pose(frame)
+    pose = move(motion.pose(frame), avatar.device)
     geometry = avatar_geometry(avatar, identity, body_model_path)
     evaluator = CachedEvaluator(avatar.model, geometry)
     if view is None:
         root = evaluator.model.skin(geometry, pose).root[0]
-        centre = root + torch.tensor([0.0, 0.0, FRONT_DISTANCE])
+        centre = root + torch.tensor([0.0, 0.0, FRONT_DISTANCE], device=root.device)
     else:
-        centre = parse_vector(view)
-    gaussians = evaluator.evaluate(avatar.identity_map(identity), pose, centre).dynamic
+        centre = move(parse_vector(view), avatar.device)
+    gaussians = move(evaluator.evaluate(avatar.identity_map(identity), pose, centre).dynamic, torch.device("cpu"))
     write_ply(out, gaussians.means[0], gaussians.scales[0], gaussians.colors[0], gaussians.opacities[0])
     return gaussians.num_gaussians

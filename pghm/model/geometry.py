@@ -49,7 +49,7 @@ class SubjectGeometry:
     detail: DetailGeometry | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "_levels", kinematic_levels(self.parents))
+        object.__setattr__(self, "_levels", kinematic_levels(self.parents, self.joints.device))
 
     @property
     def num_gaussians(self) -> int:

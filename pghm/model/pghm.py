@@ -420,7 +420,7 @@ class PGHM(nn.Module):
         def scales(log_scale: Tensor) -> Tensor:
             return (base * torch.exp(log_scale)).clamp(config.min_scale, config.max_scale)
 
-        opacities = torch.ones(surface_points.shape[:2], dtype=static.dtype)
+        opacities = torch.ones(surface_points.shape[:2], dtype=static.dtype, device=static.device)
         regularizer = (
             static_offset.square().sum(-1).mean() / REG_POSITION_UNIT**2
             + pose_offset.square().sum(-1).mean() / REG_POSITION_UNIT**2

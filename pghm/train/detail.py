@@ -41,18 +41,19 @@ def train_detail(
     body_model_path: str | None = None,
 ) -> tuple[PGHM, LoopState]:
     """``model`` with a detail layer trained for ``config.steps`` steps on ``data`` (one subject), the
-    personal ``latent`` (1, C, L, L), the network and the ``corrections`` frozen; ``model`` is unchanged.
+    personal ``latent`` (1, C, L, L), the network and the ``corrections`` frozen, on the latent's device;
+    ``model`` is unchanged.
 
     Returns the new model (in eval mode) and the stage's :class:`LoopState`.
     """
-    detailed = model.with_detail().eval()
+    detailed = model.with_detail().to(latent.device).eval()
     for p in detailed.parameters():
         p.requires_grad_(False)
     if corrections is not None:
         corrections.requires_grad_(False)
     maps = detailed.detail.maps.requires_grad_(True)
     objective = AvatarObjective(detailed, latent.detach(), corrections, config.loss, lpips)
-    geometries = GeometryCache(data, detailed.config, body_model_path)
+    geometries = GeometryCache(data, detailed.config, body_model_path, latent.device)
     optimizer = torch.optim.Adam([maps], lr=lr)
     state = run_stage(
         objective=objective,

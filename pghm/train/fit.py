@@ -23,6 +23,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from pghm.device import move
 from pghm.errors import PghmError
 from pghm.io.avatar import Avatar, load_avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig
@@ -130,6 +131,30 @@ class FitConfig:
     body_model_path: str | None = None
 
 
+GPU_CANDIDATE_RESOLUTION = 256
+"""UV side L of :func:`gpu_fit_candidate`."""
+GPU_CANDIDATE_STEPS = (200, 2000)
+"""Stage 1 and stage 2 steps of :func:`gpu_fit_candidate`."""
+GPU_CANDIDATE_IMAGES = 4
+"""Images per step of :func:`gpu_fit_candidate`."""
+
+
+def gpu_fit_candidate() -> FitConfig:
+    """A fit sized for one GPU and about two minutes, NOT MEASURED: no command uses it by default.
+
+    The CPU defaults (:class:`FitConfig`) stay every command's defaults on every device.
+    ``benchmarks/bench_gpu.py`` fits with this configuration on a CUDA device and scores it
+    against the CPU default fit, with steps per second at L = 128, 256 and 512; until it has
+    run on a GPU these numbers are a guess from the U-Net's step time on one GPU (about 20 ms),
+    not a tuned choice.
+    """
+    config = FitConfig(uv_resolution=GPU_CANDIDATE_RESOLUTION)
+    for name, steps in zip(("stage1", "stage2"), GPU_CANDIDATE_STEPS):
+        stage = replace(getattr(config, name), steps=steps, images_per_shard=GPU_CANDIDATE_IMAGES)
+        setattr(config, name, stage)
+    return config
+
+
 def pose_learning_rate(rotation_sigma: float) -> float:
     """The default learning rate of the pose corrections for poses stated ``rotation_sigma`` (radians) noisy:
 
@@ -155,11 +180,12 @@ def track_steps(rotation_sigma: float, visits: float) -> int:
 
 
 def initial_latent(model: PGHM) -> torch.Tensor:
-    """(1, C, L, L): the decoded mean of the bank's latents (a fresh latent for an empty bank)."""
+    """(1, C, L, L) on the model's device: the decoded mean of the bank's latents (a fresh latent
+    for an empty bank)."""
     with torch.no_grad():
         if model.num_identities == 0:
             size = model.config.uv_resolution
-            return torch.zeros(1, model.config.latent_channels, size, size)
+            return torch.zeros(1, model.config.latent_channels, size, size, device=model.identity_bank.device)
         return model.decode_latent(model.identity_bank.mean(0, keepdim=True))
 
 
@@ -184,13 +210,16 @@ def fit(
     out: str | Path,
     config: FitConfig | None = None,
     resume: bool = False,
+    device: torch.device | str = "cpu",
 ) -> Avatar:
     """Personalise ``prior`` to the subject in ``subject_dir`` and save the avatar to ``out``.
 
     Args:
         prior: a prior file or loaded prior; or a :class:`ModelConfig` to train the same
             model from scratch (random network, latent from zero) for comparison.
+        device: where the model, data and optimiser live; the avatar is written from the CPU.
     """
+    device = torch.device(device)
     config = config or FitConfig()
     if config.track_steps is not None and config.track_steps < 0:
         raise PghmError(f"track_steps must be >= 0, got {config.track_steps}")
@@ -225,13 +254,14 @@ def fit(
         if config.uv_resolution not in (None, model.config.uv_resolution):
             model = model.at_resolution(config.uv_resolution)
         prior_source = recorded_path(prior) if not isinstance(prior, Avatar) else "(in memory)"
+    model = model.to(device)
     model.train()
     for p in model.parameters():
         p.requires_grad_(False)
-    geometries = GeometryCache(data, model.config, config.body_model_path)
+    geometries = GeometryCache(data, model.config, config.body_model_path, device)
     latent = nn.Parameter(initial_latent(model))
-    corrections = data.pose_corrections(geometries.body) if config.refine_poses else None
-    lpips, lpips_line = lpips_for(config.lpips)
+    corrections = data.pose_corrections(geometries.body).to(device) if config.refine_poses else None
+    lpips, lpips_line = lpips_for(config.lpips, device)
     objective = AvatarObjective(model, latent, corrections, config.stage1.loss, lpips)
     ckpt = checkpoint_path(out)
     if resume and not ckpt.is_file():
@@ -321,7 +351,7 @@ def fit(
                 desc="fit: settle poses",
             )
             avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
-        avatar.pose_track = learned_track(corrections, data)
+        avatar.pose_track = move(learned_track(corrections, data), torch.device("cpu"))  # a record, as in the file
     if config.detail.steps:
         avatar.model, detail = train_detail(
             model, avatar.latent, corrections, data, config.detail, config.detail_lr, lpips, ckpt, config.body_model_path

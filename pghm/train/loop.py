@@ -29,6 +29,7 @@ from torch import Tensor, nn
 from tqdm import tqdm
 
 from pghm.body.pose import BodyPose
+from pghm.device import move
 from pghm.errors import DatasetError, PghmError
 from pghm.io.atomic import atomic_write_bytes
 from pghm.io.torch_file import TorchFileError, load_torch_file
@@ -121,6 +122,11 @@ class AvatarObjective(nn.Module):
         self.weights = weights
         self.lpips = lpips
 
+    @property
+    def device(self) -> torch.device:
+        """Where the model lives: the step's samples, backgrounds and indices are made there."""
+        return self.model.identity_bank.device
+
     def identity_map(self, identity: int) -> Tensor:
         return self.latent if self.latent is not None else self.model.decode_identity(identity)
 
@@ -136,8 +142,10 @@ class AvatarObjective(nn.Module):
         rotations = torch.stack([samples[i].rotations for i in first])
         translation = torch.stack([samples[i].translation for i in first])
         if self.corrections is not None:
-            rotations, translation = self.corrections(torch.tensor(unique), rotations, translation)
-        pose_index = torch.tensor([unique.index(k) for k in keys])
+            rotations, translation = self.corrections(
+                torch.tensor(unique, device=self.device), rotations, translation
+            )
+        pose_index = torch.tensor([unique.index(k) for k in keys], device=self.device)
         centres = torch.stack([s.camera.centre.float() for s in samples])
         out = self.model(
             self.identity_map(samples[0].identity), geometry, BodyPose(rotations, translation), centres, pose_index
@@ -173,7 +181,9 @@ class AvatarObjective(nn.Module):
         self, samples: list[Sample], geometry: SubjectGeometry, backgrounds: Tensor | None = None
     ) -> tuple[Tensor, dict[str, float]]:
         """The loss of one identity's samples and its terms; with ``backgrounds`` (B, 3, H, W),
-        targets and renders are composited on them (see :mod:`pghm.train.background`)."""
+        targets and renders are composited on them (see :mod:`pghm.train.background`). Samples and
+        backgrounds are moved to the model's device (loaded on the CPU, they are read there once)."""
+        samples, backgrounds = [move(s, self.device) for s in samples], move(backgrounds, self.device)
         static, dynamic, static_alpha, dynamic_alpha, regularizer = self.renders(samples, geometry, backgrounds)
         target = torch.stack([s.image for s in samples])
         mask = torch.stack([s.mask for s in samples])
@@ -185,7 +195,7 @@ class AvatarObjective(nn.Module):
             loss = loss + self.weights.silhouette * (sil_s + sil_d)
             terms.update(sil_s=float(sil_s.detach()), sil_d=float(sil_d.detach()), loss=float(loss.detach()))
         if self.corrections is not None and self.weights.pose_prior > 0:
-            prior = self.corrections.prior(torch.tensor(distinct_frames(samples)))
+            prior = self.corrections.prior(torch.tensor(distinct_frames(samples), device=self.device))
             loss = loss + self.weights.pose_prior * prior
             terms["pose_prior"] = float(prior.detach())
             terms["loss"] = float(loss.detach())
