@@ -9,7 +9,7 @@ One versioned file holding everything needed to rebuild and drive an avatar:
     body        {"name": backend, "shape": (S,) for an avatar, "shapes": (n, S) for a prior}
     latent      (1, C, L, L) full-resolution identity latent of an avatar (None for a prior)
     weights     the network's state dict (the bank is ``identity_bank``, (n, C, L', L'); with the
-                config's ``detail``, the detail layer's residuals ``detail.maps``, (1, 4, 2L, 2L))
+                config's ``detail``, the detail layer's residuals ``detail.maps``, (1, 5, 2L, 2L))
     metadata    training record: data, steps, seconds, metrics (plain JSON-like values)
     pose_track  optional: the pose corrections a fit learned for its video (:class:`PoseTrack`)
 
@@ -355,7 +355,7 @@ def load_avatar(path: str | Path) -> Avatar:
     if payload["version"] == 1 and config.detail:
         raise _fail(path, "a format version 1 file cannot hold a detail layer")
     if payload["kind"] == "prior" and config.detail:
-        raise _fail(path, "a prior file must not hold a detail layer (a fit adds one, pghm fit --detail)")
+        raise _fail(path, "a prior file must not hold a detail layer (a fit adds one: pghm fit --detail-steps)")
     # The shapes the config implies, from a model on the meta device (no memory): a config
     # that asks for more than the file holds is rejected before anything is allocated.
     with torch.device("meta"):

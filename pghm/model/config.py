@@ -66,7 +66,7 @@ class ModelConfig:
     """Absolute bounds (metres) on every Gaussian's scale."""
 
     detail: bool = False
-    """Place the Gaussians on a 2L atlas with per-texel colour residuals and lifts trained directly
+    """Place the Gaussians on a 2L atlas with per-texel colour, scale and lift residuals trained directly
     (:mod:`pghm.model.detail`); False: the paper's model, one Gaussian per L texel."""
 
     max_detail_offset: float = 0.01

@@ -1,9 +1,9 @@
-"""The detail layer: Gaussians at twice the UV resolution, with colours trained texel by texel.
+"""The detail layer: Gaussians at twice the UV resolution, with residuals trained texel by texel.
 
 The network's maps are L x L; one Gaussian per valid texel bounds the avatar's detail to the
 texel spacing, and the U-Net's smooth output to less. The detail layer places the Gaussians on
-the texels of a 2L atlas instead (four times as many, each half the size) and gives each its own
-trainable colour and a small lift along the surface normal, optimised directly (no network):
+the texels of a 2L atlas instead (four times as many) and gives each its own trainable colour,
+scale and small lift along the surface normal, optimised directly (no network):
 
     X_2L     = upsample(X_L)                       every gathered network output (pre-activation)
     c        = sigmoid(U_c(2L) + D_c)                  D_c: colour-logit residual (3 per 2L texel)
@@ -12,9 +12,9 @@ trainable colour and a small lift along the surface normal, optimised directly (
 
 ``base(L)`` is the L texel's base scale, upsampled like the rest: a zero layer draws Gaussians as
 large as the L model's, four times as densely, so its outline is the L model's (Gaussians of the 2L
-texel's own size, half as large, thin the outline by half an L Gaussian: on the real video the
-held-out frames lost 1 dB before any training). Where detail pays, the trained D_s shrinks them
-(down to 1/r, the same bound as ever).
+texel's own size, half as large, thin the outline by half an L Gaussian, which costs the held-out
+frames of a real video before any training: docs/lab/detail-layer.md). Where detail pays, the
+trained D_s shrinks them (down to 1/r, the same bound as ever).
 
 ``upsample`` is bilinear in UV, as ``F.interpolate(scale_factor=2, align_corners=False)`` would
 be inside a chart: a 2L texel centre lies a quarter of an L texel from its four nearest L texel

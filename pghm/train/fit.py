@@ -354,7 +354,15 @@ def fit(
         avatar.pose_track = move(learned_track(corrections, data), torch.device("cpu"))  # a record, as in the file
     if config.detail.steps:
         avatar.model, detail = train_detail(
-            model, avatar.latent, corrections, data, config.detail, config.detail_lr, lpips, ckpt, config.body_model_path
+            model,
+            avatar.latent,
+            corrections,
+            data,
+            config.detail,
+            config.detail_lr,
+            lpips,
+            ckpt,
+            config.body_model_path,
         )
         avatar.metadata["steps"]["detail"] = detail.step
         avatar.metadata["detail_seconds"] = round(detail.seconds, 1)
