@@ -21,7 +21,7 @@ from pghm.cli.options import (
 )
 from pghm.cli.render import parse_colour
 from pghm.errors import PghmError
-from pghm.io.outputs import check_output
+from pghm.io.outputs import PNG_SUFFIXES, check_output
 from pghm.model import ModelConfig
 from pghm.model.config import MAX_CHANNELS
 from pghm.train.background import BACKGROUND_KINDS, WHITE
@@ -207,8 +207,14 @@ def register(subparsers) -> None:
     evaluate.set_defaults(func=cmd_eval)
 
 
+QUIET_LOGGERS = ("anny",)
+"""Libraries whose info lines (the body model's cache loads) are not pghm's to print."""
+
+
 def _logging() -> None:
     logging.basicConfig(level=logging.INFO, format="pghm: %(message)s", stream=sys.stderr)
+    for name in QUIET_LOGGERS:
+        logging.getLogger(name).setLevel(logging.WARNING)
 
 
 def cmd_train_prior(args: argparse.Namespace) -> int:
@@ -285,7 +291,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     strip = args.strip or f"{args.avatar}.eval.png"
     inputs = [args.avatar, args.subject_dir, args.body_model_path]
     check_output(report, inputs=inputs, option="--report")
-    check_output(strip, inputs=inputs, option="--strip")
+    check_output(strip, inputs=inputs, option="--strip", suffixes=PNG_SUFFIXES)
     if Path(report).resolve() == Path(strip).resolve():
         raise PghmError(f"--report and --strip are the same file ({report}); give two names")
     device = rendering_device(args.device)

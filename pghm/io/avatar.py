@@ -32,6 +32,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from pghm.body.model import shape_problem
 from pghm.device import move
 from pghm.errors import AvatarFileError, PghmError
 from pghm.io.atomic import atomic_write_bytes
@@ -382,6 +383,10 @@ def load_avatar(path: str | Path) -> Avatar:
     shapes = None
     if "shapes" in body:
         shapes = _check_tensor(path, "body.shapes", body["shapes"], (bank.shape[0], shape.shape[0]))
+    for name, values in (("body.shape", shape), ("body.shapes", shapes)):
+        problem = None if values is None else shape_problem(body["name"], values)
+        if problem is not None:
+            raise _fail(path, f"'{name}' {problem}")
     latent = payload["latent"]
     if payload["kind"] == "avatar":
         size = config.uv_resolution

@@ -2,21 +2,27 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from pghm.errors import PghmError
+from pghm.motion.motion import MAX_TRANSLATION
 
 FRONT_DISTANCE = 3.0
 """Default baking view: this many metres in front of the posed root (+z, the body's front)."""
 
 
 def parse_vector(text: str) -> torch.Tensor:
+    """(3,) a point "X,Y,Z" in metres, each coordinate within the scene's +-MAX_TRANSLATION."""
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
         values = []
-    if len(values) != 3 or not all(torch.isfinite(torch.tensor(values))):
-        raise PghmError(f"expected three comma-separated numbers like 0,1,3, got {text!r}")
+    if len(values) != 3 or not all(math.isfinite(v) and abs(v) <= MAX_TRANSLATION for v in values):
+        raise PghmError(
+            f"expected three comma-separated numbers of metres within +-{MAX_TRANSLATION:g}, like 0,1,3, got {text!r}"
+        )
     return torch.tensor(values)
 
 

@@ -23,7 +23,7 @@ from pghm.render.driver import AvatarDriver, GaussianSet
 from pghm.render.frame_cache import FrameCache, PackedFrame
 from pghm.render.frames import Backend, CPUFrames, frame_renderer
 from pghm.render.framing import DEFAULT_FOV_Y, frame_points, orbit_camera
-from pghm.render.sinks import open_sink, output_kind, to_uint8
+from pghm.render.sinks import check_frame_size, open_sink, output_kind, to_uint8
 
 DEFAULT_SIZE = (640, 480)
 """(W, H) of ``pghm render`` images."""
@@ -156,7 +156,8 @@ def render_video(job: RenderJob, log: Callable[[str], None] = print) -> RenderSu
             f"--size {width}x{height}: each side must be positive and the image at most {MAX_RENDER_PIXELS:,} pixels"
         )
     folder = output_kind(job.out) == "dir"  # a bad output name is refused before the slow work
-    check_output(job.out, inputs=[job.avatar, job.motion], folder=folder)
+    check_output(job.out, inputs=[job.avatar, job.motion, job.body_model_path], folder=folder)
+    check_frame_size(job.out, width, height)
     avatar = load_avatar(job.avatar).to(job.device)
     avatar.check_identity(job.identity)
     driver = AvatarDriver(avatar, job.identity, job.body_model_path)

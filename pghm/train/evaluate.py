@@ -178,6 +178,7 @@ def evaluate(
             "the avatar holds no pose track (fitted with --no-pose-refinement or --pose-smoothing, or by an older pghm)"
         )
     data = TrainingData(subject_dir, split=split, true_poses=true_poses)
+    data.check_body(avatar.body_name, "the avatar")
     if data.num_identities != 1:
         names = ", ".join(subject.directory.name for subject in data.subjects[:5])
         more = ", ..." if data.num_identities > 5 else ""

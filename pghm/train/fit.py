@@ -227,6 +227,7 @@ def fit(
         if getattr(config, name) is not None:
             check_learning_rate(name, getattr(config, name))
     out = Path(out)
+    ckpt = checkpoint_path(out, resume)
     data = TrainingData(subject_dir, split=config.split, pose_smoothing=config.pose_smoothing)
     if data.num_identities != 1:
         raise PghmError(f"{subject_dir}: fit takes one subject folder, found {data.num_identities}")
@@ -248,8 +249,7 @@ def fit(
         prior_avatar = prior if isinstance(prior, Avatar) else load_avatar(prior)
         if prior_avatar.kind != "prior":
             raise PghmError(f"{prior}: is a personalised avatar, not a prior (pghm train-prior); fit needs a prior")
-        if data.body_name != prior_avatar.body_name:
-            raise PghmError(f"the subject uses the '{data.body_name}' body, the prior '{prior_avatar.body_name}'")
+        data.check_body(prior_avatar.body_name, prior if not isinstance(prior, Avatar) else "the prior")
         model = prior_avatar.model
         if config.uv_resolution not in (None, model.config.uv_resolution):
             model = model.at_resolution(config.uv_resolution)
@@ -263,9 +263,6 @@ def fit(
     corrections = data.pose_corrections(geometries.body).to(device) if config.refine_poses else None
     lpips, lpips_line = lpips_for(config.lpips, device)
     objective = AvatarObjective(model, latent, corrections, config.stage1.loss, lpips)
-    ckpt = checkpoint_path(out)
-    if resume and not ckpt.is_file():
-        raise PghmError(f"--resume: no checkpoint {ckpt} to continue from")
     payload = load_checkpoint(ckpt) if resume else None
     start_stage = _checkpoint_stage(payload, ckpt) if payload else 1
 

@@ -28,6 +28,7 @@ import torch
 from torch import Tensor, nn
 from tqdm import tqdm
 
+from pghm._fault_injection import interrupt_point
 from pghm.body.pose import BodyPose
 from pghm.device import move
 from pghm.errors import DatasetError, PghmError
@@ -447,6 +448,7 @@ def run_stage(
             if rank == 0 and config.checkpoint_every > 0 and state.step % config.checkpoint_every == 0:
                 state.bad_images = sorted(data.bad)
                 save_checkpoint(checkpoint, objective, optimizer, state, extra)
+            interrupt_point("train-step")
     except KeyboardInterrupt:
         if rank == 0:
             state.bad_images = sorted(data.bad)

@@ -13,7 +13,6 @@ from pathlib import Path
 
 import torch
 
-from pghm.errors import PghmError
 from pghm.io.avatar import Avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig
 from pghm.train import distributed
@@ -93,6 +92,7 @@ def train_prior(
     device = distributed.process_device(torch.device(device))
     distributed.init(device)
     out = Path(out)
+    ckpt = checkpoint_path(out, resume)
     data = TrainingData(data_dir, max_identities=config.max_identities)
     check_step_memory(data, config.loop, "train-prior")
     geometries = GeometryCache(data, config.model, config.body_model_path, device)
@@ -113,10 +113,7 @@ def train_prior(
     trainable = [p for group in groups for p in group["params"]]
 
     state = LoopState()
-    ckpt = checkpoint_path(out)
     if resume:
-        if not ckpt.is_file():
-            raise PghmError(f"--resume: no checkpoint {ckpt} to continue from")
         state = restore(load_checkpoint(ckpt), objective, optimizer)
         log.info("resuming from %s at step %d", ckpt, state.step)
     state = run_stage(

@@ -12,6 +12,7 @@ import torch
 
 from pghm.body import load_body
 from pghm.device import move
+from pghm.errors import PghmError
 from pghm.io.avatar import recorded_path
 from pghm.model import ModelConfig, subject_geometry
 from pghm.model.geometry import SubjectGeometry, detail_atlas
@@ -28,8 +29,12 @@ class TrainingConfig(Protocol):
     body_model_path: str | None
 
 
-def checkpoint_path(out: Path) -> Path:
-    return out.with_name(out.name + ".ckpt")
+def checkpoint_path(out: Path, resume: bool = False) -> Path:
+    """OUT.ckpt; with ``resume``, :class:`PghmError` unless it exists (asked before any data is read)."""
+    ckpt = out.with_name(out.name + ".ckpt")
+    if resume and not ckpt.is_file():
+        raise PghmError(f"--resume: no checkpoint {ckpt} to continue from")
+    return ckpt
 
 
 class GeometryCache:
