@@ -6,6 +6,7 @@ import argparse
 import json
 import logging
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from pghm.cli.options import (
@@ -163,6 +164,14 @@ def register(subparsers) -> None:
         help="L of the avatar's UV maps, a power of two; another L than the prior's carries its weights over "
         "((L / L_prior)^2 times the Gaussians; default: the prior's)",
     )
+    fit.add_argument(
+        "--detail-steps",
+        type=STEPS,
+        default=fit_defaults.detail.steps,
+        help="steps of a last stage that trains a detail layer: Gaussians at twice the UV resolution whose "
+        "colours are trained texel by texel (4 times the Gaussians; docs/training.md, 'Detail layer'); "
+        "0: none (default %(default)s)",
+    )
     _common(fit, fit_defaults.stage1)
     fit.set_defaults(func=cmd_fit)
 
@@ -265,6 +274,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         pose_smoothing=args.pose_smoothing,
         track_steps=args.track_steps,
         uv_resolution=args.uv_resolution,
+        detail=replace(stages[1], steps=args.detail_steps),
         lpips=not args.no_lpips,
         body_model_path=args.body_model_path,
     )

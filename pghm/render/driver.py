@@ -164,7 +164,7 @@ class AvatarDriver:
                 scales=chosen.scales[0].numpy().astype(np.float32),
                 colors=chosen.colors[0].numpy().astype(np.float32),
                 opacities=chosen.opacities[0].numpy().astype(np.float32),
-                normals=self._timed.skinned.normals[0].cpu().numpy().astype(np.float32),
+                normals=self._timed.skinned.gaussian_normals[0].cpu().numpy().astype(np.float32),
             )
             self._key = (output, dynamic)
         total = (time.perf_counter() - start) * 1e3

@@ -10,6 +10,7 @@ them as its pose track (:mod:`pghm.train.pose_track`).
 Then, for poses stated noisier than the synthetic data's (a capture) whose frames stage 2 visits
 too rarely, the track is settled: every training frame's correction refined against its image
 with the avatar frozen (:mod:`pghm.train.pose_refine`; :func:`track_steps`).
+Last, when ``detail`` has steps, a detail layer trains on the frozen avatar (:mod:`pghm.train.detail`).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from pghm.model import PGHM, ModelConfig
 from pghm.model.pghm import COMPONENTS
 from pghm.train.background import TRAINING_BACKGROUND
 from pghm.train.data import ESTIMATOR_ROTATION_SIGMA, TrainingData
+from pghm.train.detail import DETAIL_LR, train_detail
 from pghm.train.loop import (
     AvatarObjective,
     LoopConfig,
@@ -117,6 +119,11 @@ class FitConfig:
     """L of the avatar's UV maps; None: the prior's. Another L carries the prior's weights over
     (:meth:`PGHM.at_resolution`): (L / L_prior)^2 times as many Gaussians, finer detail, longer
     fits and slower viewing (docs/training.md, "Resolution, steps and image size")."""
+    detail: LoopConfig = field(default_factory=lambda: _fit_stage(0))
+    """The detail stage (:mod:`pghm.train.detail`); 0 steps: no detail layer, the paper's model
+    (docs/training.md, "Detail layer")."""
+    detail_lr: float = DETAIL_LR
+    """Adam learning rate of the detail layer's residuals."""
     split: str = "train"
     """The subject's split the avatar is fitted on (:data:`pghm.subject.ALL_SPLIT`: every
     image, as ``pghm capture --polish`` does to align the held-out frames' poses)."""
@@ -190,6 +197,8 @@ def _checkpoint_stage(payload: dict, path: Path) -> int:
     """The stage (1 or 2) a fit checkpoint was saved in; PghmError for another command's checkpoint."""
     extra = payload.get("extra")
     stage = extra.get("stage") if isinstance(extra, dict) else None
+    if stage == 3:
+        raise PghmError(f"{path}: a checkpoint of the detail stage, which does not resume; run the fit again")
     if type(stage) is not int or stage not in (1, 2):
         raise PghmError(f"{path}: not a checkpoint of pghm fit (from train-prior?); cannot --resume from it")
     return stage
@@ -214,7 +223,7 @@ def fit(
     config = config or FitConfig()
     if config.track_steps is not None and config.track_steps < 0:
         raise PghmError(f"track_steps must be >= 0, got {config.track_steps}")
-    for name in ("latent_lr", "network_lr", "pose_lr"):
+    for name in ("latent_lr", "network_lr", "pose_lr", "detail_lr"):
         if getattr(config, name) is not None:
             check_learning_rate(name, getattr(config, name))
     out = Path(out)
@@ -230,6 +239,7 @@ def fit(
         config = replace(config, track_steps=track_steps(data.pose_noise[0][0], visits))
     check_step_memory(data, config.stage1, "fit stage 1")
     check_step_memory(data, config.stage2, "fit stage 2")
+    check_step_memory(data, config.detail, "fit detail stage")
     if isinstance(prior, ModelConfig):
         torch.manual_seed(config.stage1.seed)
         if config.uv_resolution is not None:
@@ -339,6 +349,20 @@ def fit(
             )
             avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
         avatar.pose_track = move(learned_track(corrections, data), torch.device("cpu"))  # a record, as in the file
+    if config.detail.steps:
+        avatar.model, detail = train_detail(
+            model,
+            avatar.latent,
+            corrections,
+            data,
+            config.detail,
+            config.detail_lr,
+            lpips,
+            ckpt,
+            config.body_model_path,
+        )
+        avatar.metadata["steps"]["detail"] = detail.step
+        avatar.metadata["detail_seconds"] = round(detail.seconds, 1)
     save_avatar(out, avatar)
     ckpt.unlink(missing_ok=True)  # the avatar holds the result; a stale checkpoint would only mislead --resume
     return avatar

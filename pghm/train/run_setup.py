@@ -15,7 +15,7 @@ from pghm.device import move
 from pghm.errors import PghmError
 from pghm.io.avatar import recorded_path
 from pghm.model import ModelConfig, subject_geometry
-from pghm.model.geometry import SubjectGeometry
+from pghm.model.geometry import SubjectGeometry, detail_atlas
 from pghm.train.data import TrainingData
 from pghm.train.lpips import load_lpips, lpips_status
 from pghm.uv.atlas import build_atlas
@@ -49,13 +49,14 @@ class GeometryCache:
     ) -> None:
         self.body = load_body(data.body_name, body_model_path)
         self.atlas = build_atlas(self.body, config.uv_resolution)
+        self.detail_atlas = detail_atlas(self.body, config)
         self.data = data
         self.device = device
         self._cache: dict[int, SubjectGeometry] = {}
 
     def __call__(self, identity: int) -> SubjectGeometry:
         if identity not in self._cache:
-            geometry = subject_geometry(self.body, self.atlas, self.data.shape(identity))
+            geometry = subject_geometry(self.body, self.atlas, self.data.shape(identity), self.detail_atlas)
             self._cache[identity] = move(geometry, self.device)
         return self._cache[identity]
 
