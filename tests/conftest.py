@@ -1,18 +1,29 @@
-"""Shared fixtures. Tests run on 2 threads, as the target machine has 2 cores, unless
-OMP_NUM_THREADS says otherwise (a verdict must not depend on the thread count: the suite is run
-with 1 and 2)."""
+"""Shared fixtures, and the threads tests run on.
+
+The suite runs as ``pytest -n 2`` (pytest-xdist: one worker per core of the 2-core target), so
+each worker takes one intra-op thread, and its OpenMP threads sleep rather than spin when they
+wait: two threads per worker would contend for the two cores, and a parallel region whose second
+thread is descheduled waits for it, tens of times slower on small tensors. OMP_NUM_THREADS, when
+set, wins (a verdict must not depend on the thread count: the suite is run with 1 and 2).
+"""
 
 from __future__ import annotations
 
 import os
-from pathlib import PureWindowsPath
 
-import pytest
-import torch
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads its OpenMP runtime
 
-from pghm.model import ModelConfig
+from pathlib import PureWindowsPath  # noqa: E402
 
-torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "2")))
+import pytest  # noqa: E402
+import torch  # noqa: E402
+
+from pghm.model import ModelConfig  # noqa: E402
+
+WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+CORES = 2
+"""The target machine's cores, shared by the workers."""
+torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS") or max(1, CORES // WORKERS)))
 
 
 @pytest.fixture(scope="session")

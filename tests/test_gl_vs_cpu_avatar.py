@@ -47,7 +47,6 @@ VIEWS = {"front": (0.0, 0.0, 1.0), "back_high": (135.0, 25.0, 1.0), "top": (30.0
 
 @pytest.fixture(scope="module")
 def driver():
-    torch.set_num_threads(2)
     if not DEFAULT_AVATAR.is_file():
         pytest.fail(f"the shipped default avatar {DEFAULT_AVATAR} is missing")
     return AvatarDriver(load_avatar(DEFAULT_AVATAR))

@@ -16,7 +16,6 @@ import sys
 import imageio.v3 as iio
 import numpy as np
 import pytest
-import torch
 from conftest import SMALL_MODEL as SMALL
 
 from pghm.cli.main import main
@@ -33,7 +32,6 @@ MP4_MEAN_LEVELS = 3.0
 
 @pytest.fixture(scope="module")
 def avatar_file(tmp_path_factory):
-    torch.set_num_threads(2)
     path = tmp_path_factory.mktemp("render") / "avatar.pt"
     save_avatar(path, development_avatar(SMALL, seed=2))
     return path

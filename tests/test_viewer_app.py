@@ -102,7 +102,6 @@ def avatar_file():
 def viewer(display, avatar_file):
     from viewer.viewer import Viewer
 
-    torch.set_num_threads(2)
     app = Viewer(avatar_file, window_size=WINDOW)
     app.setup()
     app.settle()

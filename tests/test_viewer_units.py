@@ -100,7 +100,6 @@ def test_bank_pca_recovers_known_directions():
 
 @pytest.fixture(scope="module")
 def prior():
-    torch.set_num_threads(2)
     return development_avatar(SMALL, kind="prior", num_identities=4, seed=5)
 
 
