@@ -11,6 +11,7 @@ from pathlib import Path
 from pghm.cli.options import MAX_INDEX, POSITIVE_STEPS, SEED, STEPS, Integer, Real
 from pghm.cli.render import parse_colour
 from pghm.errors import PghmError
+from pghm.io.atomic import atomic_write_bytes
 from pghm.io.outputs import check_output
 from pghm.model import ModelConfig
 from pghm.model.config import MAX_CHANNELS
@@ -153,6 +154,13 @@ def register(subparsers) -> None:
         help="L of the avatar's UV maps, a power of two; another L than the prior's carries its weights over "
         "((L / L_prior)^2 times the Gaussians; default: the prior's)",
     )
+    fit.add_argument(
+        "--profile",
+        default=None,
+        metavar="JSON",
+        help="time each part of the fit (data, network, splatting, losses, optimiser, guard, pose settling): "
+        "print the table and write it to JSON",
+    )
     _common(fit, fit_defaults.stage1)
     fit.set_defaults(func=run_fit)
 
@@ -225,8 +233,13 @@ def run_train_prior(args: argparse.Namespace) -> int:
 
 def run_fit(args: argparse.Namespace) -> int:
     from pghm.train.fit import fit
+    from pghm.train.profile import profiled
 
     check_output(args.out, inputs=[args.subject_dir, args.prior, args.body_model_path])
+    if args.profile is not None:
+        check_output(args.profile, inputs=[args.subject_dir, args.prior, args.body_model_path], option="--profile")
+        if Path(args.profile).resolve() == Path(args.out).resolve():
+            raise PghmError(f"--out and --profile are the same file ({args.out}); give two names")
     _logging()
     stages = [
         LoopConfig(
@@ -250,7 +263,13 @@ def run_fit(args: argparse.Namespace) -> int:
         body_model_path=args.body_model_path,
     )
     prior = ModelConfig() if args.prior == "scratch" else args.prior
-    avatar = fit(args.subject_dir, prior, args.out, config, resume=args.resume)
+    if args.profile is None:
+        avatar = fit(args.subject_dir, prior, args.out, config, resume=args.resume)
+    else:
+        with profiled() as timing:
+            avatar = fit(args.subject_dir, prior, args.out, config, resume=args.resume)
+        print(timing.table(), file=sys.stderr)
+        atomic_write_bytes(args.profile, json.dumps(timing.record(), indent=2).encode())
     print(f"wrote {args.out}: {avatar.metadata['steps']} steps, {avatar.metadata['seconds']} s")
     return 0
 

@@ -53,11 +53,12 @@ def _cpu_signature() -> str:
 def build_directory() -> Path:
     """Where the kernel is compiled: one directory per source, flags, torch installation and CPU.
 
-    The installation's path is part of the key: torch's build file names its include directories,
-    so two environments sharing one directory would each rebuild the kernel whenever the other
-    had run last."""
+    The installation's path and the source's are part of the key: torch's build file names its
+    include directories and the source file, so two environments (or two checkouts) sharing one
+    directory would each rebuild the kernel whenever the other had run last."""
     digest = hashlib.sha256()
-    for part in (" ".join(CXX_FLAGS), torch.__version__, str(Path(torch.__file__).resolve().parent), _cpu_signature()):
+    torch_dir = str(Path(torch.__file__).resolve().parent)
+    for part in (" ".join(CXX_FLAGS), torch.__version__, torch_dir, str(SOURCE.resolve()), _cpu_signature()):
         digest.update(part.encode())
     digest.update(SOURCE.read_bytes())
     return cache_dir() / "ext" / f"splat-{digest.hexdigest()[:16]}"

@@ -26,6 +26,7 @@ from pghm.errors import PghmError
 from pghm.io.avatar import Avatar, load_avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig
 from pghm.model.pghm import COMPONENTS
+from pghm.train import profile
 from pghm.train.background import TRAINING_BACKGROUND
 from pghm.train.data import ESTIMATOR_ROTATION_SIGMA, TrainingData
 from pghm.train.loop import (
@@ -243,9 +244,10 @@ def fit(
     state1 = LoopState(step=config.stage1.steps)
     if start_stage == 1:
         state1 = restore(payload, objective, stage1_opt) if payload else LoopState()
-        state1 = run_stage(
-            objective, [latent], stage1_opt, data, geometries, config.stage1, ckpt, state1, {"stage": 1}, "fit 1/2"
-        )
+        with profile.phase("stage 1"):
+            state1 = run_stage(
+                objective, [latent], stage1_opt, data, geometries, config.stage1, ckpt, state1, {"stage": 1}, "fit 1/2"
+            )
 
     network = network_parameters(model)
     for p in network:
@@ -259,9 +261,10 @@ def fit(
         state2 = restore(payload, objective, stage2_opt)
     objective.weights = config.stage2.loss
     trainable = [p for g in groups for p in g["params"]]
-    state2 = run_stage(
-        objective, trainable, stage2_opt, data, geometries, config.stage2, ckpt, state2, {"stage": 2}, "fit 2/2"
-    )
+    with profile.phase("stage 2"):
+        state2 = run_stage(
+            objective, trainable, stage2_opt, data, geometries, config.stage2, ckpt, state2, {"stage": 2}, "fit 2/2"
+        )
 
     avatar = Avatar(
         model=model.eval(),
@@ -292,18 +295,20 @@ def fit(
         if config.track_steps:
             started = time.perf_counter()
             loss = config.stage2.loss
-            refine_poses(
-                avatar,
-                data,
-                config.track_steps,
-                loss,
-                POSE_LR,
-                corrections,
-                progress=config.stage2.progress,
-                desc="fit: settle poses",
-            )
+            with profile.phase("pose settling"):
+                refine_poses(
+                    avatar,
+                    data,
+                    config.track_steps,
+                    loss,
+                    POSE_LR,
+                    corrections,
+                    progress=config.stage2.progress,
+                    desc="fit: settle poses",
+                )
             avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
         avatar.pose_track = learned_track(corrections, data)
-    save_avatar(out, avatar)
+    with profile.phase("save"):
+        save_avatar(out, avatar)
     ckpt.unlink(missing_ok=True)  # the avatar holds the result; a stale checkpoint would only mislead --resume
     return avatar

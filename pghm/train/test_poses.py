@@ -29,6 +29,7 @@ from tqdm import tqdm
 
 from pghm.body import load_body
 from pghm.io.avatar import Avatar, avatar_geometry
+from pghm.train import profile
 from pghm.train.background import TRAINING_BACKGROUND, draw_backgrounds
 from pghm.train.data import PoseCorrections, TrainingData
 from pghm.train.loop import AvatarObjective
@@ -78,27 +79,33 @@ def refine_poses(
     bar = tqdm(total=len(starts) * steps, desc=desc, disable=not progress, dynamic_ncols=True)
     try:
         for position, start in enumerate(starts):
-            samples = data.load_group(0, images[start : start + IMAGES_PER_BATCH])
+            with profile.part(profile.DATA):
+                samples = data.load_group(0, images[start : start + IMAGES_PER_BATCH])
             if not samples:
                 bar.update(steps)
                 continue
             height, width = samples[0].camera.height, samples[0].camera.width
             for step in range(steps):
                 optimizer.zero_grad(set_to_none=False)
-                backgrounds = draw_backgrounds(
-                    TRAINING_BACKGROUND, len(samples), height, width, (seed, REFINE_SEED_SALT, step, position)
-                )
+                with profile.part(profile.DATA):
+                    backgrounds = draw_backgrounds(
+                        TRAINING_BACKGROUND, len(samples), height, width, (seed, REFINE_SEED_SALT, step, position)
+                    )
                 loss, _ = objective(samples, geometry, backgrounds)
-                loss.backward()
+                with profile.part(profile.LOSSES_BACKWARD):
+                    loss.backward()
                 bar.update(1)
-                if not all(bool(torch.isfinite(p.grad).all()) for p in corrections.parameters()):
+                with profile.part(profile.GUARD):
+                    finite = all(bool(torch.isfinite(p.grad).all()) for p in corrections.parameters())
+                if not finite:
                     log.warning(
                         "pose refinement, images %s, step %d: non-finite gradient; step skipped",
                         [s.image_index for s in samples],
                         step,
                     )
                     continue
-                optimizer.step()
+                with profile.part(profile.OPTIMISER):
+                    optimizer.step()
     finally:
         bar.close()
         for p in frozen:
