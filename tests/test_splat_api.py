@@ -157,6 +157,15 @@ def test_each_torch_installation_builds_in_its_own_directory(monkeypatch):
     assert native.build_directory().parent == here.parent
 
 
+def test_each_checkout_builds_in_its_own_directory(monkeypatch, tmp_path):
+    """Two checkouts of one source in one environment: torch's build file names the source's path."""
+    here = native.build_directory()
+    copy = tmp_path / native.SOURCE.name
+    copy.write_bytes(native.SOURCE.read_bytes())
+    monkeypatch.setattr(native, "SOURCE", copy)
+    assert native.build_directory() != here
+
+
 # A builder in another process: takes the lock, makes torch's baton, reports, then holds it.
 _BUILDER = """
 import os, sys, time

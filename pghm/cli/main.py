@@ -22,6 +22,7 @@ import os
 import sys
 from collections.abc import Callable
 
+from pghm.cli.threads import set_threads, set_wait_policy
 from pghm.errors import EXIT_USER_ERROR, PghmError
 
 SUBCOMMAND_MODULES = ("synth", "capture", "data", "motion", "train", "export", "bench", "render")
@@ -120,8 +121,14 @@ def run_command(
     return guarded(tool, work, debug_requested(argv))
 
 
+def _execute(args: argparse.Namespace) -> int:
+    set_threads()
+    return args.func(args)
+
+
 def main(argv: list[str] | None = None) -> int:
-    return run_command("pghm", build_parser, lambda args: args.func(args), argv)
+    set_wait_policy()  # before the subcommands import torch
+    return run_command("pghm", build_parser, _execute, argv)
 
 
 if __name__ == "__main__":

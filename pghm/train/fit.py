@@ -42,6 +42,7 @@ from pghm.train.loop import (
 )
 from pghm.train.losses import LossWeights
 from pghm.train.optim import LazyAdam
+from pghm.train.person_crop import CROP_MARGIN
 from pghm.train.pose_track import learned_track
 from pghm.train.prior import GeometryCache, checkpoint_path, config_record, lpips_for
 from pghm.train.test_poses import refine_poses
@@ -67,6 +68,10 @@ On a captured 100-frame video the held-out frames rendered with the track gain -
 and +0.90 dB over stage 2's corrections at 10, 20, 30 and 50 steps: Adam's first steps move every
 coordinate by about the learning rate, whatever its gradient, and the poses settle only after
 (docs/training.md)."""
+
+TRACK_BATCH = 8
+"""Frames the pose settling refines together: one evaluation of the identity's U-Net features and
+one pass of Python overhead serve eight frames (the corrections of a frame depend on its image alone)."""
 
 TRACK_MIN_VISITS = 20
 """Stage 2 visits per training frame (its steps x images per step / training images) from which its
@@ -128,6 +133,13 @@ class FitConfig:
     split: str = "train"
     """The subject's split the avatar is fitted on (:data:`pghm.data.subject.ALL_SPLIT`: every
     image, as ``pghm capture --polish`` does to align the held-out frames' poses)."""
+    hold_appearance: bool = True
+    """Settle the pose track with the network's maps held at each batch's starting poses
+    (:class:`pghm.train.test_poses.HeldAppearance`): the skinning moves the Gaussians, no U-Net
+    runs per step."""
+    crop_margin: int | None = CROP_MARGIN
+    """Train on each image cut to the person's box with this margin in pixels, the loss kept the
+    full frame's (:mod:`pghm.train.person_crop`); None: whole frames."""
     lpips: bool = True
     body_model_path: str | None = None
 
@@ -200,7 +212,9 @@ def fit(
         if getattr(config, name) is not None:
             check_learning_rate(name, getattr(config, name))
     out = Path(out)
-    data = TrainingData(subject_dir, split=config.split, pose_smoothing=config.pose_smoothing)
+    data = TrainingData(
+        subject_dir, split=config.split, pose_smoothing=config.pose_smoothing, crop_margin=config.crop_margin
+    )
     if data.num_identities != 1:
         raise PghmError(f"{subject_dir}: fit takes one subject folder, found {data.num_identities}")
     if config.pose_lr is None:
@@ -305,6 +319,8 @@ def fit(
                     corrections,
                     progress=config.stage2.progress,
                     desc="fit: settle poses",
+                    batch=TRACK_BATCH,
+                    hold_appearance=config.hold_appearance,
                 )
             avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
         avatar.pose_track = learned_track(corrections, data)

@@ -33,12 +33,13 @@ from pghm.errors import DatasetError, PghmError
 from pghm.io.atomic import atomic_write_bytes
 from pghm.io.torch_file import TorchFileError, load_torch_file
 from pghm.model.geometry import SubjectGeometry
-from pghm.model.pghm import PGHM
+from pghm.model.pghm import PGHM, AvatarOutput
 from pghm.splat import Camera, render
 from pghm.train import distributed, profile
 from pghm.train.background import BACKGROUND_KINDS, BLACK, WHITE, composite_render, composite_target, draw_backgrounds
 from pghm.train.data import PoseCorrections, Sample, TrainingData
 from pghm.train.losses import LossWeights, objective, psnr, silhouette
+from pghm.train.person_crop import area_tensor
 
 log = logging.getLogger(__name__)
 
@@ -124,6 +125,12 @@ class AvatarObjective(nn.Module):
     def identity_map(self, identity: int) -> Tensor:
         return self.latent if self.latent is not None else self.model.decode_identity(identity)
 
+    def avatar(
+        self, identity: int, geometry: SubjectGeometry, pose: BodyPose, centres: Tensor, pose_index: Tensor
+    ) -> AvatarOutput:
+        """Both Gaussian sets of B views (camera centres (B, 3)) of P poses (see :meth:`PGHM.forward`)."""
+        return self.model(self.identity_map(identity), geometry, pose, centres, pose_index)
+
     def renders(
         self, samples: list[Sample], geometry: SubjectGeometry, backgrounds: Tensor | None = None
     ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
@@ -140,9 +147,7 @@ class AvatarObjective(nn.Module):
                 rotations, translation = self.corrections(torch.tensor(unique), rotations, translation)
             pose_index = torch.tensor([unique.index(k) for k in keys])
             centres = torch.stack([s.camera.centre.float() for s in samples])
-            out = self.model(
-                self.identity_map(samples[0].identity), geometry, BodyPose(rotations, translation), centres, pose_index
-            )
+            out = self.avatar(samples[0].identity, geometry, BodyPose(rotations, translation), centres, pose_index)
         # Both sets of all B views in one batched render: (2B, H, W, 3).
         if len({(s.camera.width, s.camera.height) for s in samples}) > 1:
             raise DatasetError("the images of one subject must all have the same size")
@@ -199,10 +204,13 @@ class AvatarObjective(nn.Module):
         target: Tensor,
         mask: Tensor,
     ) -> tuple[Tensor, dict[str, float]]:
-        """The loss of renders (B, 3, H, W) and alphas (B, 1, H, W) against targets and masks, and its terms."""
-        loss, terms = objective(static, dynamic, target, regularizer, self.weights, self.lpips)
+        """The loss of renders (B, 3, H, W) and alphas (B, 1, H, W) against targets and masks, and its
+        terms; those of the full frames when the samples are crops."""
+        area = area_tensor([s.crop for s in samples]) if any(s.crop for s in samples) else None
+        share = area[:, 0] if area is not None else None
+        loss, terms = objective(static, dynamic, target, regularizer, self.weights, self.lpips, area)
         if self.weights.silhouette > 0:
-            sil_s, sil_d = silhouette(static_alpha, mask).mean(), silhouette(dynamic_alpha, mask).mean()
+            sil_s, sil_d = silhouette(static_alpha, mask, share).mean(), silhouette(dynamic_alpha, mask, share).mean()
             loss = loss + self.weights.silhouette * (sil_s + sil_d)
             terms.update(sil_s=float(sil_s.detach()), sil_d=float(sil_d.detach()), loss=float(loss.detach()))
         if self.corrections is not None and self.weights.pose_prior > 0:
@@ -210,7 +218,7 @@ class AvatarObjective(nn.Module):
             loss = loss + self.weights.pose_prior * prior
             terms["pose_prior"] = float(prior.detach())
             terms["loss"] = float(loss.detach())
-        terms["psnr"] = float(psnr(dynamic.detach().clamp(0, 1), target).mean())
+        terms["psnr"] = float(psnr(dynamic.detach().clamp(0, 1), target, share).mean())
         return loss, terms
 
 

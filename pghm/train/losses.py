@@ -53,29 +53,39 @@ def ssim(x: Tensor, y: Tensor) -> Tensor:
     return _ssim(x, y, data_range=1.0, size_average=False, win_size=SSIM_WINDOW, win_sigma=SSIM_SIGMA)
 
 
-def psnr(x: Tensor, y: Tensor) -> Tensor:
-    """(B,) PSNR in dB of images in [0, 1]; +inf for identical images."""
+def psnr(x: Tensor, y: Tensor, pixel_share: Tensor | None = None) -> Tensor:
+    """(B,) PSNR in dB of images in [0, 1]; +inf for identical images. ``pixel_share`` (B,): crops'
+    shares of their frames' pixels, for the PSNR of the frames (the same outside the crops)."""
     mse = (x - y).square().flatten(1).mean(1)
+    if pixel_share is not None:
+        mse = mse * pixel_share
     return torch.where(mse > 0, -10.0 * torch.log10(mse), torch.full_like(mse, math.inf))
 
 
-def silhouette(alpha: Tensor, mask: Tensor) -> Tensor:
-    """(B,) mean over pixels of |A - m|: accumulated alphas (B, 1, H, W) against masks (B, 1, H, W).
+def silhouette(alpha: Tensor, mask: Tensor, pixel_share: Tensor | None = None) -> Tensor:
+    """(B,) mean over pixels of |A - m|: accumulated alphas (B, 1, H, W) against masks (B, 1, H, W)
+    (of the full frames for crops with ``pixel_share`` (B,), as :func:`psnr`).
 
     On white a semi-transparent fringe outside the mask costs nothing in the photometric terms;
     here it costs its opacity, and a hole inside the mask its transparency.
     """
-    return (alpha - mask).abs().flatten(1).mean(1)
+    mean = (alpha - mask).abs().flatten(1).mean(1)
+    return mean if pixel_share is None else mean * pixel_share
 
 
-def image_losses(render: Tensor, target: Tensor, lpips=None) -> dict[str, Tensor]:
-    """Per-image terms (each (B,)) between renders and targets (B, 3, H, W)."""
+def image_losses(render: Tensor, target: Tensor, lpips=None, area: Tensor | None = None) -> dict[str, Tensor]:
+    """Per-image terms (each (B,)) between renders and targets (B, 3, H, W).
+
+    ``area``: (B, 2) each image's share of its full frame's pixels and SSIM windows when it is a
+    crop (:mod:`pghm.train.person_crop`): the terms are then the full frame's."""
     terms = {
         "l1": (render - target).abs().flatten(1).mean(1),
         "dssim": 1.0 - ssim(render, target),
     }
     if lpips is not None:
         terms["lpips"] = lpips(render, target)
+    if area is not None:
+        terms = {key: value * area[:, 1 if key == "dssim" else 0] for key, value in terms.items()}
     return terms
 
 
@@ -86,15 +96,17 @@ def objective(
     regularizer: Tensor,
     weights: LossWeights = LossWeights(),
     lpips=None,
+    area: Tensor | None = None,
 ) -> tuple[Tensor, dict[str, float]]:
-    """The paper's loss on both renders (B, 3, H, W), averaged over the batch.
+    """The paper's loss on both renders (B, 3, H, W), averaged over the batch (crops: ``area``
+    as in :func:`image_losses`).
 
     Returns the scalar loss and a dict of its terms for logging.
     """
     total = weights.regularizer * regularizer
     log = {"reg": float(regularizer.detach())}
     for name, render in (("s", static_render), ("d", dynamic_render)):
-        terms = image_losses(render, target, lpips)
+        terms = image_losses(render, target, lpips, area)
         total = total + weights.l1 * terms["l1"].mean() + weights.ssim * terms["dssim"].mean()
         if "lpips" in terms:
             total = total + weights.lpips * terms["lpips"].mean()
