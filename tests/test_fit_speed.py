@@ -204,3 +204,20 @@ def test_held_appearance_is_the_networks_at_the_starting_pose(tiny_dataset):
         moved = held.avatar(0, geometry, turned, centres, index)
     assert not torch.allclose(moved.dynamic.means, first.dynamic.means)
     assert torch.equal(moved.dynamic.colors, first.dynamic.colors)
+
+
+def test_the_losses_ssim_is_pytorch_msssims_with_the_targets_statistics_shared():
+    from pghm.train.losses import TargetSsim, ssim
+
+    generator = torch.Generator().manual_seed(2)
+    renders = torch.rand(2, 2, 3, 40, 31, generator=generator, requires_grad=True)
+    target = torch.rand(2, 3, 40, 31, generator=generator)
+    shared = TargetSsim(target)
+    for render in renders:
+        reference = ssim(render, target)
+        value = shared(render)
+        # Float32 rounding of the same sums in another grouping: a few ulps of values near 1.
+        torch.testing.assert_close(value, reference, rtol=0, atol=1e-6)
+        (expected,) = torch.autograd.grad(reference.sum(), render)
+        (found,) = torch.autograd.grad(value.sum(), render)
+        torch.testing.assert_close(found, expected, rtol=1e-4, atol=1e-9)
