@@ -10,10 +10,13 @@ starts as a user's would (thread policy included) and its table is the fit's own
   busy loop (``python -c "while True: pass"``, started :data:`BUSY_WARMUP_S` before, so the
   load average the fit starts under shows it);
 - ``--policies``: beside a busy loop, short fits under each thread setting of :data:`POLICIES`,
-  interleaved ``--repeats`` times: median stage-2 seconds per step and its ratio to the first.
+  interleaved ``--repeats`` times: median stage-2 seconds per step and its ratio to the first;
+- ``--held-check AVATAR``: the subject's held-out frames after :data:`TRACK_STEPS` steps of pose
+  refinement with the network run at every step and with its maps held (the settling's way).
 
     python benchmarks/bench_fit_speed.py SUBJECT [SUBJECT ...] [--steps 5 10 2] [--repeats 3]
                                          [--threads 1] [--full] [--busy] [--policies] [--label NAME]
+                                         [--held-check AVATAR]
 
 Prints the tables and writes benchmarks/results/bench_fit_speed[_NAME].json. Every row records
 the load averages it ran under: on a shared machine the wall times are what others left, the
@@ -23,6 +26,7 @@ CPU seconds closer to the work itself.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import statistics
@@ -33,6 +37,8 @@ import time
 from pathlib import Path
 
 from common import ROOT, load_average, print_table, write_json
+
+from pghm.train.fit import TRACK_STEPS
 
 PGHM = [sys.executable, "-m", "pghm.cli.main"]
 PRIOR = ROOT / "assets" / "prior.pt"
@@ -168,6 +174,36 @@ def policies(subject: Path, work: Path, steps: list[int], repeats: int) -> dict:
     return {"subject": subject.name, "busy_loop": True, "steps": steps, "rows": rows}
 
 
+def held_check(avatar: Path, subject: Path, steps: int) -> dict:
+    """Held-out PSNR / SSIM after refining each test frame's pose for ``steps`` steps with the network
+    run at every step (``pghm eval --refine-poses``) and with its maps held, eight frames at a time
+    (the fit's settling, :class:`pghm.train.test_poses.HeldAppearance`): what holding them costs
+    the alignment, on frames no fit saw."""
+    import torch
+
+    from pghm.train import test_poses
+    from pghm.train.evaluate import evaluate
+    from pghm.train.fit import TRACK_BATCH
+
+    torch.set_num_threads(1)
+    original = test_poses.refine_poses
+    rows = []
+    for held in (False, True):
+        test_poses.refine_poses = functools.partial(
+            original, hold_appearance=held, batch=TRACK_BATCH if held else test_poses.IMAGES_PER_BATCH
+        )
+        try:
+            started = time.process_time()
+            result = evaluate(avatar, subject, refine_poses=steps)
+            seconds = time.process_time() - started
+        finally:
+            test_poses.refine_poses = original
+        summary = result.summary()
+        rows.append({"network": "held" if held else "run every step", "psnr": summary["psnr"],
+                     "ssim": summary["ssim"], "cpu_s": round(seconds, 1)})
+    return {"subject": subject.name, "avatar": avatar.name, "steps": steps, "rows": rows}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("subjects", nargs="+", type=Path)
@@ -178,12 +214,21 @@ def main() -> None:
     parser.add_argument("--busy", action="store_true", help="with --full: beside a busy loop")
     parser.add_argument("--policies", action="store_true", help="thread settings beside a busy loop")
     parser.add_argument("--label", default=None, help="results file suffix")
+    parser.add_argument(
+        "--held-check", type=Path, default=None, metavar="AVATAR",
+        help="refine the held-out poses of the (one) subject against AVATAR with the network run and held",
+    )
     args = parser.parse_args()
-    payload: dict = {"breakdown": [], "full": [], "policies": []}
+    payload: dict = {"breakdown": [], "full": [], "policies": [], "held_check": []}
     with tempfile.TemporaryDirectory() as temporary:
         work = Path(temporary)
         for subject in args.subjects:
-            if args.policies:
+            if args.held_check:
+                result = held_check(args.held_check, subject, TRACK_STEPS)
+                print(f"\n{subject.name}: held-out frames after {TRACK_STEPS} refinement steps")
+                print_table(result["rows"])
+                payload["held_check"].append(result)
+            elif args.policies:
                 result = policies(subject, work, args.steps, args.repeats)
                 print(f"\n{subject.name}: stage 2 beside a busy loop")
                 print_table(result["rows"])

@@ -129,16 +129,16 @@ def test_a_crops_loss_is_its_frames_when_the_render_outside_is_background():
     regularizer = torch.tensor(0.3)
 
     def cut(images):
-        return torch.stack([torch.from_numpy(c.image(images[b].permute(1, 2, 0).numpy())).permute(2, 0, 1)
-                            for b, c in enumerate(crops)])
+        boxes = [c.image(images[b].permute(1, 2, 0).numpy()) for b, c in enumerate(crops)]
+        return torch.stack([torch.from_numpy(box).permute(2, 0, 1) for box in boxes])
 
     area = area_tensor(crops)
     whole, _ = objective(frames["s"], frames["d"], frames["t"], regularizer)
     cropped, _ = objective(cut(frames["s"]), cut(frames["d"]), cut(frames["t"]), regularizer, area=area)
     torch.testing.assert_close(cropped, whole, rtol=1e-5, atol=0)
-    torch.testing.assert_close(
-        silhouette(cut(alphas["s"]), cut(alphas["m"]), area[:, 0]), silhouette(alphas["s"], alphas["m"]), rtol=1e-5, atol=0
-    )
+    whole_silhouette = silhouette(alphas["s"], alphas["m"])
+    cropped_silhouette = silhouette(cut(alphas["s"]), cut(alphas["m"]), area[:, 0])
+    torch.testing.assert_close(cropped_silhouette, whole_silhouette, rtol=1e-5, atol=0)
     torch.testing.assert_close(psnr(cut(frames["d"]), cut(frames["t"]), area[:, 0]), psnr(frames["d"], frames["t"]))
 
 

@@ -4,6 +4,9 @@ Each subcommand lives in its own module under :mod:`pghm.cli` and exposes
 ``register(subparsers)``, which adds its parser and sets ``func`` to a function taking the
 parsed arguments. The subcommands are thin: they parse, call a library function, print.
 
+**Threads.** :func:`main` applies :mod:`pghm.cli.threads` before any subcommand imports torch:
+waiting OpenMP threads sleep, and torch takes one thread per core other processes leave free.
+
 **Errors.** :func:`main` is the one place a failure becomes what the user sees, for every
 subcommand, including while the subcommand modules (and torch) are imported: a
 :class:`PghmError` or an ``OSError`` (permission denied, disk full, a folder where a file

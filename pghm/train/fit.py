@@ -9,7 +9,8 @@ optimised together, with per-frame pose corrections when ``refine_poses``; the a
 them as its pose track (:mod:`pghm.train.pose_track`).
 Then, for poses stated noisier than the synthetic data's (a capture) whose frames stage 2 visits
 too rarely, the track is settled: every training frame's correction refined against its image
-with the avatar frozen (:mod:`pghm.train.test_poses`; :func:`track_steps`).
+with the avatar frozen and the network's maps held (:mod:`pghm.train.test_poses`; :func:`track_steps`).
+Both stages train on crops around the person (:mod:`pghm.train.person_crop`).
 """
 
 from __future__ import annotations

@@ -70,7 +70,8 @@ class Crop:
         """(s_pixels, s_windows): the box's share of the frame's pixels and of its SSIM windows."""
         reach = SSIM_WINDOW - 1
         pixels = self.width * self.height / (self.frame_width * self.frame_height)
-        windows = (self.width - reach) * (self.height - reach) / ((self.frame_width - reach) * (self.frame_height - reach))
+        frame_windows = (self.frame_width - reach) * (self.frame_height - reach)
+        windows = (self.width - reach) * (self.height - reach) / frame_windows
         return pixels, windows
 
 

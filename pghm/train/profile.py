@@ -113,10 +113,14 @@ class Profile:
         """(wall, CPU) seconds from start to the last mark."""
         return self._wall_mark - self.started_wall, self._cpu_mark - self.started_cpu
 
+    def phase_names(self) -> list[str]:
+        """The phases charged so far, in the order they began."""
+        return list(dict.fromkeys(phase for phase, _ in self.wall))
+
     def record(self) -> dict:
         """JSON-ready: seconds per phase and part (wall and CPU), totals, threads, load averages."""
         wall, cpu = self.totals()
-        phases = list(dict.fromkeys(phase for phase, _ in self.wall))
+        phases = self.phase_names()
         return {
             "wall_s": round(wall, 3),
             "cpu_s": round(cpu, 3),
@@ -134,7 +138,7 @@ class Profile:
 
     def table(self) -> str:
         """Wall seconds per part (rows) and phase (columns), with the total wall and CPU per part."""
-        phases = list(dict.fromkeys(phase for phase, _ in self.wall))
+        phases = self.phase_names()
         header = ["part", *phases, "wall", "cpu"]
         rows = []
         for part in PARTS:
@@ -144,10 +148,12 @@ class Profile:
         wall, cpu = self.totals()
         per_phase = [sum(self.wall.get((phase, part), 0.0) for part in PARTS) for phase in phases]
         rows.append(["total", *(f"{c:.1f}" for c in per_phase), f"{wall:.1f}", f"{cpu:.1f}"])
-        widths = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]
-        lines = ["  ".join(str(c).rjust(w) if i else str(c).ljust(w) for i, (c, w) in enumerate(zip(r, widths)))
-                 for r in [header, *rows]]
-        return "\n".join(lines)
+        lines = [header, *rows]
+        widths = [max(len(line[i]) for line in lines) for i in range(len(header))]
+        return "\n".join(
+            "  ".join(cell.rjust(width) if i else cell.ljust(width) for i, (cell, width) in enumerate(zip(line, widths)))
+            for line in lines
+        )
 
 
 _ACTIVE: Profile | None = None
