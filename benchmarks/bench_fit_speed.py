@@ -176,9 +176,9 @@ def policies(subject: Path, work: Path, steps: list[int], repeats: int) -> dict:
 
 def held_check(avatar: Path, subject: Path, steps: int) -> dict:
     """Held-out PSNR / SSIM after refining each test frame's pose for ``steps`` steps with the network
-    run at every step (``pghm eval --refine-poses``) and with its maps held, eight frames at a time
-    (the fit's settling, :class:`pghm.train.test_poses.HeldAppearance`): what holding them costs
-    the alignment, on frames no fit saw."""
+    run at every step (``pghm eval --refine-poses``, two frames at a time, then eight) and with its
+    maps held, eight at a time (the fit's settling, :class:`pghm.train.test_poses.HeldAppearance`):
+    what holding them costs the alignment, on frames no fit saw."""
     import torch
 
     from pghm.train import test_poses
@@ -188,10 +188,8 @@ def held_check(avatar: Path, subject: Path, steps: int) -> dict:
     torch.set_num_threads(1)
     original = test_poses.refine_poses
     rows = []
-    for held in (False, True):
-        test_poses.refine_poses = functools.partial(
-            original, hold_appearance=held, batch=TRACK_BATCH if held else test_poses.IMAGES_PER_BATCH
-        )
+    for held, batch in ((False, test_poses.IMAGES_PER_BATCH), (False, TRACK_BATCH), (True, TRACK_BATCH)):
+        test_poses.refine_poses = functools.partial(original, hold_appearance=held, batch=batch)
         try:
             started = time.process_time()
             result = evaluate(avatar, subject, refine_poses=steps)
@@ -199,8 +197,15 @@ def held_check(avatar: Path, subject: Path, steps: int) -> dict:
         finally:
             test_poses.refine_poses = original
         summary = result.summary()
-        rows.append({"network": "held" if held else "run every step", "psnr": summary["psnr"],
-                     "ssim": summary["ssim"], "cpu_s": round(seconds, 1)})
+        rows.append(
+            {
+                "network": "held" if held else "run every step",
+                "frames at a time": batch,
+                "psnr": summary["psnr"],
+                "ssim": summary["ssim"],
+                "cpu_s": round(seconds, 1),
+            }
+        )
     return {"subject": subject.name, "avatar": avatar.name, "steps": steps, "rows": rows}
 
 
