@@ -1,6 +1,6 @@
 """Foundation timings: posed UV position map, atlas from cache, texel surface, body rest.
 
-Targets (issue 2): posed UV position map at L = 128 in at most 10 ms on 2 threads; atlas
+Targets: posed UV position map at L = 128 in at most 10 ms on 2 threads; atlas
 build from cache in at most 50 ms.
 
     python benchmarks/bench_body.py

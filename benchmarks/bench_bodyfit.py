@@ -4,7 +4,8 @@ Renders (or reuses) a ``pghm synth --config mono`` subject, runs MediaPipe Pose
 (``model_complexity=1``, video mode) on its training frames, gives :func:`fit_body` the
 detections with the true masks (the front end's segmentation is measured by
 bench_capture), and compares the fitted canonical joints with the generator's exact poses
-in each frame's camera coordinates (issue 22, targets b, c and e):
+in each frame's camera coordinates, against the capture's targets b, c and e (docs/capture.md,
+"How well it works"):
 
 - root-relative MPJPE <= 80 mm and PA-MPJPE <= 50 mm;
 - 2D error of the canonical joints <= 2 % of the person's height;
@@ -26,13 +27,14 @@ import numpy as np
 from common import load_average, print_table, write_json
 
 from pghm.body import load_body
-from pghm.capture.bodyfit import BodyFitConfig, fit_body
+from pghm.capture.bodyfit import fit_body
+from pghm.capture.config import BodyFitConfig
 from pghm.capture.frontend import Observations
 from pghm.capture.landmarks import NUM_LANDMARKS
 from pghm.capture.metrics import camera_joints, error_2d_percent, mpjpe, pa_mpjpe, project
-from pghm.data.subject import Subject, image_name, read_mask, read_rgb
-from pghm.data.synth.config import PRESETS
-from pghm.data.synth.generate import generate
+from pghm.subject import Subject, image_name, read_mask, read_rgb
+from pghm.synth.config import PRESETS
+from pghm.synth.generate import generate
 
 
 def detect(folder: Path, indices: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

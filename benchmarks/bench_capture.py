@@ -1,6 +1,6 @@
-"""``pghm capture`` against the synthetic generator's truth (issue 22, "How it is measured").
+"""``pghm capture`` against the synthetic generator's truth (docs/capture.md, "How well it works").
 
-Synthetic monocular walks (:mod:`pghm.data.synth.video`) are encoded as H.264 videos with
+Synthetic monocular walks (:mod:`pghm.synth.video`) are encoded as H.264 videos with
 the person over two kinds of background, captured with ``pghm capture`` (defaults: the
 focal length is estimated), and the subjects compared with the truth, per seed x background:
 
@@ -50,13 +50,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from common import DOCS, RESULTS, ROOT, load_average, print_table, write_json
+from common import BYTES_PER_GB, DOCS, KB, RESULTS, ROOT, load_average, print_table, timed_child, write_json
 from PIL import Image
 
 from pghm.capture.crop import Region, crop_intrinsics, from_region
-from pghm.data.subject import Subject, check, read_mask
-from pghm.data.synth.poses import MOTION_KINDS
-from pghm.data.synth.video import WalkTruth, graded_background, render_walk_video, walk_config
+from pghm.subject import Subject, check, read_mask
+from pghm.synth.poses import MOTION_KINDS
+from pghm.synth.video import WalkTruth, graded_background, render_walk_video, walk_config
 
 if TYPE_CHECKING:
     import matplotlib.axes
@@ -92,9 +92,6 @@ SIZE = (512, 384)
 PRIOR = ROOT / "assets" / "prior.pt"
 PGHM = [sys.executable, "-m", "pghm.cli.main"]
 """The pghm command, run in a child process of this interpreter."""
-BYTES_PER_GB = 1e9
-KB = 1024
-"""ru_maxrss is in kilobytes on Linux."""
 
 
 def photograph(name: str) -> np.ndarray:
@@ -136,22 +133,10 @@ class CaptureRun:
 
 
 def run_capture(video: Path, out: Path, log: Path, options: tuple[str, ...] = ()) -> CaptureRun:
-    """``pghm capture VIDEO --out OUT`` in a child process, so its peak memory is its own.
-
-    ``os.wait4`` gives the child's resource usage: ru_maxrss (kB) is the largest resident
-    set of the child and the processes it waited for (the ffmpeg reader).
-    """
-    command = [*PGHM, "capture", str(video), "--out", str(out), *options]
-    started = time.perf_counter()
-    with open(log, "w") as sink:
-        process = subprocess.Popen(command, stdout=sink, stderr=sink)
-        _, status, usage = os.wait4(process.pid, 0)
-    seconds = time.perf_counter() - started
-    code = os.waitstatus_to_exitcode(status)
-    if code != 0:
-        tail = log.read_text()[-1500:]
-        raise RuntimeError(f"pghm capture failed on {video.name} (status {code}):\n{tail}")
-    return CaptureRun(out, seconds, usage.ru_maxrss * KB / BYTES_PER_GB)
+    """``pghm capture VIDEO --out OUT`` in a child process, so its peak memory is its own (with
+    the ffmpeg reader it waits for)."""
+    seconds, peak_gb = timed_child([*PGHM, "capture", str(video), "--out", str(out), *options], log)
+    return CaptureRun(out, seconds, peak_gb)
 
 
 # ------------------------------------------------------------------ subject pixels <-> video pixels
@@ -245,7 +230,7 @@ def measure(truth: WalkTruth, subject_dir: Path) -> Comparison:
     """Metrics a-c of the module docstring for one captured subject."""
     from pghm.body import load_body
     from pghm.capture.metrics import camera_joints, error_2d_percent, mapped_joints, mpjpe, pa_mpjpe, project
-    from pghm.data.subject import image_name
+    from pghm.subject import image_name
 
     subject = Subject.open(subject_dir)
     a, t = subject.arrays, truth.arrays
@@ -306,7 +291,7 @@ def reference_subject(truth: WalkTruth, video: Path, captured_dir: Path, out: Pa
     ``true_masks`` the images are the decoded video frames (the same compression) composited on
     white through the true masks, cropped as the capture cropped.
     """
-    from pghm.data.subject import SubjectArrays, write_image, write_subject
+    from pghm.subject import SubjectArrays, write_image, write_subject
 
     captured = Subject.open(captured_dir)
     a, t = captured.arrays, truth.arrays
@@ -385,7 +370,7 @@ def same_training_split(a: Path, b: Path) -> bool:
     """Whether ``pghm fit`` sees the same data in subject folders ``a`` and ``b``: the same splits,
     cameras, shape and stated pose noise, and the same poses, images and masks of the training
     frames (:mod:`pghm.capture.polish` changes only the held-out frames' poses)."""
-    from pghm.data.subject import image_name
+    from pghm.subject import image_name
 
     first, second = Subject.open(a), Subject.open(b)
     x, y = first.arrays, second.arrays
@@ -446,7 +431,7 @@ def draw_skeleton(image: Image.Image, uv: np.ndarray, colour: tuple[int, int, in
 
 def frame_tiles(truth: WalkTruth, video: Path, subject_dir: Path, comparison: Comparison) -> np.ndarray:
     """(h, 3 w, 3) uint8 of the middle captured frame: video | masks compared | joints (true, captured)."""
-    from pghm.data.subject import image_name
+    from pghm.subject import image_name
 
     i = len(comparison.frames) // 2
     frame = int(comparison.frames[i])

@@ -1,7 +1,7 @@
 """``pghm capture`` on the real phone video changed the ways a user's own video differs from it.
 
-Issue 22 expects the command "to be tried on real videos you have not seen: static and
-hand-held cameras, indoors and outdoors, one person or several". There is no truth for the
+A user's own video is not the one the command was tuned on: static or hand-held camera,
+indoors or outdoors, one person or several. There is no truth for the
 real video, but there is one for what a filter does to it. Each variant is the real video
 through an ffmpeg filter whose effect on a pixel is known,
 
@@ -50,7 +50,7 @@ from PIL import Image
 
 from pghm.capture.crop import to_region
 from pghm.capture.video import REFERENCE_WHITE_NITS
-from pghm.data.subject import Subject, check, image_name, read_mask, read_rgb
+from pghm.subject import Subject, check, image_name, read_mask, read_rgb
 
 REAL_VIDEO = Path("shared") / "data" / "video" / "outdoor_dribble_40f.mp4"
 """The real phone video, in a ``shared/`` folder beside the repository (or beside a parent of it)."""

@@ -1,4 +1,4 @@
-"""The paper's claims, measured at CPU scale on synthetic data (issue 6).
+"""The paper's claims, measured at CPU scale on synthetic data.
 
 1. Prior + personalisation vs training the same model from scratch on the same monocular
    subject: held-out novel-pose PSNR/SSIM of the prior fitted for K steps, of scratch for K
@@ -105,7 +105,7 @@ class Runs:
 def bent_frames(subject: Path) -> list[int]:
     """Novel-pose test images with an elbow or knee flexed beyond BENT_DEGREES."""
     from pghm.body import load_body
-    from pghm.data.subject import Subject
+    from pghm.subject import Subject
 
     data = Subject.open(subject)
     body = load_body(data.arrays.body)

@@ -177,25 +177,25 @@ def policies(subject: Path, work: Path, steps: list[int], repeats: int) -> dict:
 def held_check(avatar: Path, subject: Path, steps: int) -> dict:
     """Held-out PSNR / SSIM after refining each test frame's pose for ``steps`` steps with the network
     run at every step (``pghm eval --refine-poses``, two frames at a time, then eight) and with its
-    maps held, eight at a time (the fit's settling, :class:`pghm.train.test_poses.HeldAppearance`):
+    maps held, eight at a time (the fit's settling, :class:`pghm.train.pose_refine.HeldAppearance`):
     what holding them costs the alignment, on frames no fit saw."""
     import torch
 
-    from pghm.train import test_poses
+    from pghm.train import pose_refine
     from pghm.train.evaluate import evaluate
     from pghm.train.fit import TRACK_BATCH
 
     torch.set_num_threads(1)
-    original = test_poses.refine_poses
+    original = pose_refine.refine_poses
     rows = []
-    for held, batch in ((False, test_poses.IMAGES_PER_BATCH), (False, TRACK_BATCH), (True, TRACK_BATCH)):
-        test_poses.refine_poses = functools.partial(original, hold_appearance=held, batch=batch)
+    for held, batch in ((False, pose_refine.IMAGES_PER_BATCH), (False, TRACK_BATCH), (True, TRACK_BATCH)):
+        pose_refine.refine_poses = functools.partial(original, hold_appearance=held, batch=batch)
         try:
             started = time.process_time()
             result = evaluate(avatar, subject, refine_poses=steps)
             seconds = time.process_time() - started
         finally:
-            test_poses.refine_poses = original
+            pose_refine.refine_poses = original
         summary = result.summary()
         rows.append(
             {

@@ -1,4 +1,4 @@
-"""Model timings at the default config (issue 4 targets, 2 threads):
+"""Model timings at the default config (targets, 2 threads):
 
     full forward, identity map -> posed Gaussians     <= 60 ms
     pose-only update (cached evaluator)               <= 35 ms

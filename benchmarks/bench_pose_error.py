@@ -8,7 +8,7 @@ fitted with the true poses and cameras, so their appearance is the best a fit of
 gives):
 
 1. Sweep. Each held-out frame's true pose gets the synthetic generator's estimator noise
-   (:func:`pghm.data.synth.poses.add_pose_noise`: every canonical joint's rotation composed
+   (:func:`pghm.synth.poses.add_pose_noise`: every canonical joint's rotation composed
    with a random rotation of N(0, sigma_r^2) axis-angle components, the root translation
    N(0, sigma_t^2) per axis), sigma_r / sigma_t in the capture's own ratio (9.5 degrees, 5 cm)
    at several fractions of it, a few draws each. Per level: the PSNR drop against the same
@@ -22,7 +22,7 @@ gives):
 
 The curve says how small a held-out frame's pose error must be for d's 1.5 dB, whatever made
 the pose: where it crosses 1.5 dB, against c's 2 % and the 36-55 mm PA-MPJPE that published
-monocular regressors report on 3DPW (issue 22's own figures).
+monocular regressors report on 3DPW.
 
     python benchmarks/bench_pose_error.py --keep DIR/s0 DIR/s1 DIR/s2 [--levels 0.05 0.1 ...] [--draws 3]
 
@@ -46,9 +46,9 @@ from common import DOCS, load_average, print_table, setup_threads, write_json
 from pghm.body import BodyModel, load_body
 from pghm.capture.metrics import camera_joints, error_2d_percent, mapped_joints, mpjpe, pa_mpjpe, project
 from pghm.capture.pipeline import POSE_NOISE
-from pghm.data.synth.poses import add_pose_noise
 from pghm.io.avatar import Avatar, load_avatar
-from pghm.train import test_poses
+from pghm.synth.poses import add_pose_noise
+from pghm.train import pose_refine
 from pghm.train.data import PoseCorrections, TrainingData
 from pghm.train.evaluate import on_background, render_images
 from pghm.train.fit import POSE_LR, FitConfig
@@ -65,7 +65,7 @@ REFINE_STEPS = 30
 GAP_TARGET_DB = 1.5
 REPROJ_TARGET_PCT = 2.0
 PUBLISHED_PA_MPJPE_MM = (36.0, 55.0)
-"""PA-MPJPE of published monocular regressors on 3DPW (issue 22's figures)."""
+"""PA-MPJPE of published monocular regressors on 3DPW."""
 WHITE = (1.0, 1.0, 1.0)
 ERRORS = ("reproj_pct", "pa_mpjpe_mm", "mpjpe_mm")
 """The joint errors reported: 2D % of the person's height, PA-MPJPE and MPJPE in mm."""
@@ -218,7 +218,7 @@ def captured(case: Case, reference: Reference, body: BodyModel) -> list[dict]:
     if not np.array_equal(data.images[0], reference.data.images[0]):
         raise SystemExit(f"{case.name}: the captured and reference subjects hold different test images")
     loss = FitConfig().stage2.loss
-    reference_refined = test_poses.refine_poses(
+    reference_refined = pose_refine.refine_poses(
         reference.avatar, reference.data, REFINE_STEPS, loss, POSE_LR, progress=False
     )
     refined_reference_psnr = frame_psnr(reference.avatar, reference.data, reference_refined)
@@ -226,7 +226,7 @@ def captured(case: Case, reference: Reference, body: BodyModel) -> list[dict]:
         "stored": (None, reference.psnr),
         "track": (track_corrections(avatar.pose_track, data, body)[0], reference.psnr),
         "refined": (
-            test_poses.refine_poses(avatar, data, REFINE_STEPS, loss, POSE_LR, progress=False),
+            pose_refine.refine_poses(avatar, data, REFINE_STEPS, loss, POSE_LR, progress=False),
             refined_reference_psnr,
         ),
     }

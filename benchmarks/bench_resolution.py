@@ -1,4 +1,4 @@
-"""Fit quality against cost: UV resolution L x fitting steps x training image size (issue 23, item 3).
+"""Fit quality against cost: UV resolution L x fitting steps x training image size.
 
 For every (L, steps, image scale): fit the monocular subject with the default ``pghm fit``
 configuration at that budget (stage 1 a tenth of the steps, as the default), then score the
@@ -31,10 +31,10 @@ from pathlib import Path
 
 from common import DOCS, load_average, print_table, setup_threads, write_json
 
-from pghm.data.synth.config import PRESETS
-from pghm.data.synth.generate import generate
 from pghm.io.avatar import avatar_geometry
 from pghm.model import ModelConfig
+from pghm.synth.config import PRESETS
+from pghm.synth.generate import generate
 from pghm.train.evaluate import evaluate
 from pghm.train.fit import FitConfig, fit
 

@@ -20,9 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from PIL import Image
-
-from pghm.splat import render
-from pghm.splat.benchmark import (
+from splat_measure import (
     body_scene,
     format_table,
     plot_scaling,
@@ -31,6 +29,8 @@ from pghm.splat.benchmark import (
     speed_table,
     write_json,
 )
+
+from pghm.splat import render
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results"

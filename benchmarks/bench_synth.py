@@ -20,8 +20,8 @@ from pathlib import Path
 
 from common import DOCS, load_average, print_table, write_json
 
-from pghm.data.subject import check
-from pghm.data.synth import contact_sheet, generate, load_config
+from pghm.subject import check
+from pghm.synth import contact_sheet, generate, load_config
 
 TARGET_S = 180.0
 SEED = 0

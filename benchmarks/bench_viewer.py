@@ -49,9 +49,9 @@ from bench_gl import body_scene, summary
 from bench_gl import orbit_camera as body_orbit_camera
 from common import load_average, print_table, setup_threads, write_json
 
-from pghm.data.open_motion import open_motion
 from pghm.gl import SpriteRenderer, driver_info, headless_context
 from pghm.io.avatar import load_avatar
+from pghm.motion.open_motion import open_motion
 from pghm.render import AvatarDriver, frame_points, orbit_camera
 from pghm.splat import render
 from viewer.demo import development_avatar

@@ -11,6 +11,7 @@ import json
 import os
 import platform
 import statistics
+import subprocess
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -52,6 +53,29 @@ def load_average() -> float:
     """The 1-minute load average: a time measured while other jobs share the 2 cores is
     slower, and the reader of a table needs to know."""
     return os.getloadavg()[0]
+
+
+BYTES_PER_GB = 1e9
+KB = 1024
+"""ru_maxrss is in kilobytes on Linux."""
+
+
+def timed_child(command: list[str], log: Path) -> tuple[float, float]:
+    """Run ``command`` with its output in ``log``: its wall seconds and peak resident GB.
+
+    ``os.wait4`` gives the child's resource usage: ru_maxrss (kB) is the largest resident set
+    of the child and the processes it waited for. Raises RuntimeError with the log's tail if
+    the child fails.
+    """
+    started = time.perf_counter()
+    with open(log, "w") as sink:
+        process = subprocess.Popen(command, stdout=sink, stderr=sink)
+        _, status, usage = os.wait4(process.pid, 0)
+    seconds = time.perf_counter() - started
+    code = os.waitstatus_to_exitcode(status)
+    if code != 0:
+        raise RuntimeError(f"{' '.join(command[2:5])} failed (status {code}):\n{log.read_text()[-1500:]}")
+    return seconds, usage.ru_maxrss * KB / BYTES_PER_GB
 
 
 def print_table(rows: list[dict], columns: list[str] | None = None) -> None:

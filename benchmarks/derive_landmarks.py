@@ -25,9 +25,9 @@ from common import print_table, setup_threads, write_json
 
 from pghm.body import BodyPose, load_body
 from pghm.capture.landmarks import LANDMARK_ANCHORS, LANDMARK_NAMES, landmark_points
-from pghm.data.subject import Subject, image_name
-from pghm.data.synth.config import SynthConfig
-from pghm.data.synth.generate import generate
+from pghm.subject import Subject, image_name
+from pghm.synth.config import SynthConfig
+from pghm.synth.generate import generate
 
 VISIBLE = 0.5
 """MediaPipe visibility above which a detection is used."""

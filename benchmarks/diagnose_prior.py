@@ -1,4 +1,4 @@
-"""Whether a prior can help (issue 6): how well a prior fits the people it was trained on,
+"""Whether a prior can help: how well a prior fits the people it was trained on,
 and where personalised avatars gain or lose on the held-out subject.
 
 1. The prior on its own training identities: PSNR of every identity's decoded map on its
@@ -24,8 +24,8 @@ import numpy as np
 from common import DOCS, setup_threads
 from PIL import Image, ImageDraw
 
-from pghm.data.subject import Subject
 from pghm.io.avatar import Avatar, load_avatar, recorded_path
+from pghm.subject import Subject
 from pghm.train.evaluate import STRIP_FRAMES, evaluate
 
 TRAIN_STRIDE = 5

@@ -51,7 +51,7 @@ def fitted_body_masks(subject_dir: Path, frame_indices: list[int]) -> dict[int, 
     from PIL import Image, ImageDraw
 
     from pghm.body import load_body
-    from pghm.data.subject import Subject
+    from pghm.subject import Subject
 
     subject = Subject.open(subject_dir)
     arrays = subject.arrays

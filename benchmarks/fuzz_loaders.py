@@ -182,7 +182,7 @@ SMALL_BVH = (ROOT / "tests" / "data" / "two_bone.bvh").read_text()
 
 def write_small_subject(directory: Path, body) -> None:
     """A valid two-image, 8 x 8 pixel subject folder (the seed of the ``subject`` target)."""
-    from pghm.data.subject import SubjectArrays, write_image, write_subject
+    from pghm.subject import SubjectArrays, write_image, write_subject
 
     n = 2
     world_to_camera = np.repeat(np.eye(4)[None], n, 0)
@@ -431,9 +431,9 @@ class Targets:
 
     def __init__(self, workdir: Path) -> None:
         from pghm.body import load_body
-        from pghm.data.motion import Motion
         from pghm.io.avatar import Avatar, avatar_payload, save_avatar
         from pghm.model import PGHM, ModelConfig
+        from pghm.motion.motion import Motion
 
         self.workdir = workdir
         self.body = load_body()
@@ -475,7 +475,7 @@ class Targets:
 
     def bvh(self, rng: random.Random) -> bytes:
         """parse_bvh on mutated text (or bytes) of a seed clip."""
-        from pghm.data.bvh import parse_bvh
+        from pghm.motion.bvh import parse_bvh
 
         seed = rng.choice(self.bvh_seeds)
         data = mutate_bvh_text(seed, rng).encode() if rng.random() < 0.8 else mutate_bytes(seed.encode(), rng)
@@ -485,7 +485,7 @@ class Targets:
 
     def bvh_import(self, rng: random.Random) -> bytes:
         """The whole import: a mutated Mixamo clip from disk, parsed and retargeted onto the body."""
-        from pghm.data.open_motion import open_motion
+        from pghm.motion.open_motion import open_motion
 
         data = mutate_bvh_text(self.bvh_seeds[1], rng).encode()
         self._last = data
@@ -522,7 +522,7 @@ class Targets:
 
     def motion_npz(self, rng: random.Random) -> bytes:
         """Motion.load on mutated arrays (70 %) or damaged bytes (30 %)."""
-        from pghm.data.motion import Motion
+        from pghm.motion.motion import Motion
 
         if rng.random() < 0.7:
             buffer = io.BytesIO()
@@ -543,7 +543,7 @@ class Targets:
         the training data raise one DatasetError or work."""
         import shutil
 
-        from pghm.data.subject import Subject, check
+        from pghm.subject import Subject, check
         from pghm.train.data import TrainingData
 
         folder = self.workdir / "case_subject"

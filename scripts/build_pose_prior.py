@@ -1,4 +1,4 @@
-"""Rebuild pghm/capture/pose_prior.npz from motion-capture clips (BVH, any rig pghm.data.retarget reads).
+"""Rebuild pghm/capture/pose_prior.npz from motion-capture clips (BVH, any rig pghm.motion.retarget reads).
 
     python scripts/build_pose_prior.py assets/motion/*.bvh
 
@@ -17,7 +17,7 @@ import numpy as np
 from pghm.body import BodyModel, load_body
 from pghm.capture.bodyfit import FITTED_JOINTS, hinge_axes
 from pghm.capture.pose_prior import POSE_PRIOR_FILE, build_pose_prior, project_hinges, save_pose_prior
-from pghm.data.retarget import import_bvh
+from pghm.motion.retarget import import_bvh
 
 
 def clip_rotations(path: Path, body: BodyModel) -> np.ndarray:

@@ -1,8 +1,9 @@
 """GLSL sources of the GL renderer (:mod:`pghm.gl`), shipped as package data.
 
-Each shader is one ``<name>.glsl`` file beginning with ``#version 330 core``. Constants
-shared with the CPU splatter (``NEAR_PLANE``, ``ALPHA_MIN``, ...) are not written in the
-files: :func:`source` inserts them as ``#define`` lines, so Python stays their only source.
+Each shader is one ``<name>.glsl`` file beginning with ``#version 330 core``. The splatting
+spec's constants (``NEAR_PLANE``, ``ALPHA_MIN``, ..., defined in :mod:`pghm.splat.spec`) are not
+written in the files: :func:`source` inserts them as ``#define`` lines, so Python stays their
+only source.
 
 Precision. The Gaussian sprite shaders (``gaussian_sprite.vert.glsl`` and
 ``gaussian_sprite.frag.glsl``) run in float32 or float64 from one source: the quantities whose

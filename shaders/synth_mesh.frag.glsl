@@ -1,5 +1,5 @@
 #version 330 core
-// Lit, textured body surface for the synthetic data (pghm.data.synth.render).
+// Lit, textured body surface for the synthetic data (pghm.synth.render).
 //
 // Shading (linear light, textures and output in sRGB approximated by gamma 2.2):
 //   h      = sum_k a_k G_k(uv)                    pose-dependent fold height in [-1, 1]

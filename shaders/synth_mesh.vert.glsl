@@ -1,9 +1,9 @@
 #version 330 core
-// Synthetic-data mesh renderer (pghm.data.synth.render): one LBS-posed, clothed body mesh.
+// Synthetic-data mesh renderer (pghm.synth.render): one LBS-posed, clothed body mesh.
 // Positions and normals arrive already posed, in world space (metres, y up); the CPU
 // builds clip_from_world = P world_to_camera, P the projection made from the OpenCV
 // intrinsics K with no y flip, so that GL's framebuffer row r holds image row r (see
-// pghm/data/synth/render.py).
+// pghm/synth/render.py).
 
 in vec3 in_position;
 in vec3 in_normal;

@@ -14,9 +14,9 @@ from geometry import rodrigues
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pghm.data.bvh import MAX_BVH_BYTES, euler_to_matrices, load_bvh, parse_bvh
-from pghm.data.motion import MAX_FRAMES
 from pghm.errors import MotionFileError
+from pghm.motion.bvh import MAX_BVH_BYTES, euler_to_matrices, load_bvh, parse_bvh
+from pghm.motion.motion import MAX_FRAMES
 
 MOTION_DIR = Path(__file__).resolve().parent.parent / "assets" / "motion"
 AXES = {"X": np.array([1.0, 0.0, 0.0]), "Y": np.array([0.0, 1.0, 0.0]), "Z": np.array([0.0, 0.0, 1.0])}

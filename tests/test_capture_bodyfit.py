@@ -1,6 +1,6 @@
 """Body fit on synthetic observations made from a known body (round trip against the truth).
 
-The truth: a random Anny shape doing a synthetic motion (pghm.data.synth.poses) before a
+The truth: a random Anny shape doing a synthetic motion (pghm.synth.poses) before a
 known camera. Its landmark points (through the measured correspondence) are projected with
 pixel noise, its hip-centred camera-frame landmarks get metric noise (MediaPipe's world
 landmarks), and its masks are rasterised from the projected mesh. The fit sees only these
@@ -17,14 +17,14 @@ import torch
 from scipy.ndimage import binary_closing, binary_fill_holes
 
 from pghm.body import BodyPose, load_body
-from pghm.capture.bodyfit import HEIGHT_PHENOTYPE, BodyFitConfig, fit_body, rest_height, shape_of_height
-from pghm.capture.config import HEIGHT_RANGE_M, CaptureConfig
+from pghm.capture.bodyfit import HEIGHT_PHENOTYPE, fit_body, rest_height, shape_of_height
+from pghm.capture.config import HEIGHT_RANGE_M, BodyFitConfig, CaptureConfig
 from pghm.capture.frontend import Observations
 from pghm.capture.landmarks import BODY_LANDMARKS, NUM_LANDMARKS, landmark_points
 from pghm.capture.metrics import camera_joints, error_2d_percent, mpjpe, pa_mpjpe, project
-from pghm.data.synth.cameras import intrinsics, look_at
-from pghm.data.synth.poses import place_on_path, synth_motion
 from pghm.errors import PghmError
+from pghm.synth.cameras import intrinsics, look_at
+from pghm.synth.poses import place_on_path, synth_motion
 
 FRAMES = 24
 SIZE = 320

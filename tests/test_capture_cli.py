@@ -100,7 +100,7 @@ def test_without_mediapipe_says_how_to_install(tmp_path, capsys, monkeypatch):
 
 
 def small_fit():
-    from pghm.capture.bodyfit import BodyFitConfig
+    from pghm.capture.config import BodyFitConfig
 
     return BodyFitConfig(steps=(2, 2, 2))  # the writer is under test here, not the fit's accuracy
 
@@ -110,7 +110,7 @@ def test_capture_writes_a_subject_that_data_check_accepts(tmp_path):
     import json
 
     from pghm.capture import CaptureConfig, capture
-    from pghm.data.subject import Subject, check
+    from pghm.subject import Subject, check
 
     frames = real_frames(10)
     frames[4] = 128  # one frame without the person

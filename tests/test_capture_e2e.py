@@ -1,6 +1,6 @@
 """``pghm capture`` end to end on a short synthetic walk, against the generator's truth.
 
-The walk (:mod:`pghm.data.synth.video`) is an H.264 video over a plain graded background;
+The walk (:mod:`pghm.synth.video`) is an H.264 video over a plain graded background;
 the command runs as a user runs it (the CLI, default options but a test split that a short
 video can fill). The truth is mapped into the subject's pixels independently of the
 pipeline: the true masks cropped to meta.json's region and resized, the joints compared
@@ -18,8 +18,8 @@ from capture_videos import require_mediapipe
 from PIL import Image
 
 from pghm.cli.main import main
-from pghm.data.subject import Subject, check, image_name, read_mask
-from pghm.data.synth.video import graded_background, render_walk_video, walk_config
+from pghm.subject import Subject, check, image_name, read_mask
+from pghm.synth.video import graded_background, render_walk_video, walk_config
 from pghm.train.data import ESTIMATOR_ROTATION_SIGMA, ESTIMATOR_TRANSLATION_SIGMA, TrainingData
 
 pytestmark = pytest.mark.gl

@@ -158,7 +158,7 @@ def test_the_landmark_model_alone_finds_the_person_in_their_square(tmp_path):
     generator's masks; an empty grey frame gives nothing."""
     require_mediapipe()
     from pghm.capture.frontend import native_logs_silenced
-    from pghm.data.synth.video import graded_background, render_walk_video, walk_config
+    from pghm.synth.video import graded_background, render_walk_video, walk_config
 
     width, height = 384, 288
     video = tmp_path / "walk.mp4"

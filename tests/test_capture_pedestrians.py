@@ -107,9 +107,9 @@ def test_a_back_turned_walker_over_clutter_is_found_through_the_proposals():
     require_mediapipe()
     from pghm.body import load_body
     from pghm.capture.frontend import native_logs_silenced
-    from pghm.data.synth.generate import plan_subject, release_worker_gl, render_views
-    from pghm.data.synth.paint import value_noise
-    from pghm.data.synth.video import SUBJECT_INDEX, composite, walk_config
+    from pghm.synth.generate import plan_subject, release_worker_gl, render_views
+    from pghm.synth.paint import value_noise
+    from pghm.synth.video import SUBJECT_INDEX, composite, walk_config
 
     width, height = 512, 384
     config = walk_config(100, width, height, 512)

@@ -12,8 +12,8 @@ import pytest
 from conftest import TINY_MODEL
 
 import pghm.capture.polish as polish
-from pghm.data.subject import ALL_SPLIT, Subject, check
 from pghm.model import ModelConfig
+from pghm.subject import ALL_SPLIT, Subject, check
 from pghm.train.fit import FitConfig
 from pghm.train.loop import LoopConfig
 

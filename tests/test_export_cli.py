@@ -7,10 +7,10 @@ import torch
 from conftest import SMALL_MODEL
 
 from pghm.cli.main import main
-from pghm.data.procedural import procedural_motion
 from pghm.io.avatar import avatar_geometry, load_avatar, save_avatar
 from pghm.io.ply import read_ply
 from pghm.model.evaluator import CachedEvaluator
+from pghm.motion.procedural import procedural_motion
 from pghm.splat import Camera, render
 from viewer.demo import development_avatar
 

@@ -180,7 +180,7 @@ def test_held_appearance_is_the_networks_at_the_starting_pose(tiny_dataset):
     from pghm.model import PGHM, ModelConfig
     from pghm.train.loop import LoopConfig
     from pghm.train.prior import GeometryCache
-    from pghm.train.test_poses import HeldAppearance
+    from pghm.train.pose_refine import HeldAppearance
 
     data = TrainingData(tiny_dataset / "subject_000")
     torch.manual_seed(0)

@@ -1,4 +1,4 @@
-"""The model learns: one identity fitted to a handful of rendered views (issue 4)."""
+"""The model learns: one identity fitted to a handful of rendered views ."""
 
 from __future__ import annotations
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from pghm.cli.main import main
-from pghm.data.motion import Motion
-from pghm.data.procedural import procedural_motion
 from pghm.errors import EXIT_USER_ERROR
+from pghm.motion.motion import Motion
+from pghm.motion.procedural import procedural_motion
 
 WALK_BVH = Path(__file__).resolve().parent.parent / "assets" / "motion" / "mixamo_walk_69f.bvh"
 

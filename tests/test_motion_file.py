@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from pghm.data.motion import MAX_FRAMES, MOTION_KEYS, Motion
 from pghm.errors import MotionFileError
+from pghm.motion.motion import MAX_FRAMES, MOTION_KEYS, Motion
 
 BONES = ["root", "spine", "head"]
 
@@ -128,8 +128,8 @@ def test_a_subject_folder_is_its_videos_motion(tiny_dataset, tmp_path, body):
     subject is one error naming it."""
     import shutil
 
-    from pghm.data.open_motion import SUBJECT_FPS, open_motion
     from pghm.errors import DatasetError
+    from pghm.motion.open_motion import SUBJECT_FPS, open_motion
 
     subject = tiny_dataset / "subject_000"
     poses, cameras = np.load(subject / "poses.npz"), np.load(subject / "cameras.npz")
@@ -154,9 +154,9 @@ def test_a_subject_folder_replays_with_the_pose_track_of_an_avatar_fitted_on_it(
     on other poses (another digest) leaves the stored poses."""
     import torch
 
-    from pghm.data.open_motion import open_motion
-    from pghm.data.subject import Subject
     from pghm.io.avatar import PoseTrack
+    from pghm.motion.open_motion import open_motion
+    from pghm.subject import Subject
 
     subject = tiny_dataset / "subject_000"
     stored = open_motion(subject, body)

@@ -9,10 +9,10 @@ import torch
 
 from pghm.body import lbs
 from pghm.body.model import BodyModel, RestBody
-from pghm.data import procedural
-from pghm.data.motion import Motion
-from pghm.data.procedural import PROCEDURAL_MOTIONS, procedural_motion
 from pghm.errors import PghmError
+from pghm.motion import procedural
+from pghm.motion.motion import Motion
+from pghm.motion.procedural import PROCEDURAL_MOTIONS, procedural_motion
 
 FPS = 30.0
 

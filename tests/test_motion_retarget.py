@@ -1,5 +1,5 @@
 """Retargeting the real BVH clips onto Anny and onto a T-pose body, checked against the clips'
-bone directions from a forward kinematics written here, independently of pghm.data.bvh."""
+bone directions from a forward kinematics written here, independently of pghm.motion.bvh."""
 
 from __future__ import annotations
 
@@ -12,9 +12,10 @@ import roma
 import torch
 from test_motion_procedural import StickBody, angle_deg, facing, posed_joints, posed_vertices
 
-from pghm.data.bvh import load_bvh
-from pghm.data.motion import Motion
-from pghm.data.retarget import (
+from pghm.errors import MotionFileError
+from pghm.motion.bvh import load_bvh
+from pghm.motion.motion import Motion
+from pghm.motion.retarget import (
     RIG_MAPS,
     clip_facing,
     detect_rig,
@@ -23,7 +24,6 @@ from pghm.data.retarget import (
     resample,
     retarget_bvh,
 )
-from pghm.errors import MotionFileError
 
 MOTION_DIR = Path(__file__).resolve().parent.parent / "assets" / "motion"
 CLIPS = ("mixamo_walk_69f.bvh", "mocapbank_455f.bvh")
@@ -360,7 +360,7 @@ def test_resampling_keeps_duration_and_interpolates_on_the_sphere(anny_motions):
 
 
 def test_long_clips_are_converted_in_chunks_with_the_same_result(stick, monkeypatch):
-    from pghm.data import retarget
+    from pghm.motion import retarget
 
     clip = load_bvh(MOTION_DIR / "mocapbank_455f.bvh")
     whole = retarget_bvh(clip, stick)

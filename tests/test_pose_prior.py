@@ -18,7 +18,8 @@ from pghm.train.data import ESTIMATOR_ROTATION_SIGMA, ESTIMATOR_TRANSLATION_SIGM
 from pghm.train.fit import FIT_POSE_PRIOR, FitConfig
 from pghm.train.loop import AvatarObjective
 from pghm.train.losses import LossWeights
-from pghm.train.prior import GeometryCache, PriorConfig
+from pghm.train.prior import PriorConfig
+from pghm.train.run_setup import GeometryCache
 
 
 def test_prior_counts_the_corrections_in_units_of_the_noise():

@@ -74,7 +74,7 @@ def test_a_frame_aligned_to_its_image_keeps_its_stored_pose(subject, body):
     """meta.json's aligned_frames (a polished capture's held-out frames): the track interpolates
     nothing onto them, in eval and in the subject played as a motion; a trained frame listed there
     keeps its own correction."""
-    from pghm.data.open_motion import subject_motion
+    from pghm.motion.open_motion import subject_motion
 
     train = TrainingData(subject)
     learned = train.pose_corrections(body)
@@ -94,7 +94,7 @@ def test_a_frame_aligned_to_its_image_keeps_its_stored_pose(subject, body):
 
 def played_stored(subject) -> np.ndarray:
     """(3, 3) the tiny subject's frames' stored root translations, as a motion plays them untracked."""
-    from pghm.data.open_motion import subject_motion
+    from pghm.motion.open_motion import subject_motion
 
     return subject_motion(subject).translation
 

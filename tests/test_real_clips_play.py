@@ -17,8 +17,8 @@ from conftest import SMALL_MODEL
 from test_motion_retarget import CLIPS, MOTION_DIR
 
 import pghm.render.job as render_job
-from pghm.data.bvh import load_bvh
 from pghm.io.avatar import save_avatar
+from pghm.motion.bvh import load_bvh
 from pghm.render import RenderJob, render_video
 from viewer.demo import development_avatar
 

@@ -114,7 +114,7 @@ def test_single_png_and_options(prior_file, tmp_path):
 def test_frames_follow_the_motion_clock(avatar_file, tmp_path):
     """Frame k samples the motion at start + k / fps; an orbit turns once over the video."""
     from pghm.body import load_body
-    from pghm.data.open_motion import open_motion
+    from pghm.motion.open_motion import open_motion
 
     motion = open_motion("walk", load_body("anny"))
     job = RenderJob(avatar=avatar_file, out=tmp_path / "x", motion="walk", fps=15.0, orbit=True, start=0.5)
@@ -188,7 +188,7 @@ def test_a_looping_motion_evaluates_each_pose_once_and_repeats_it_exactly(avatar
     """Two loops of the walk at 6 fps: the second loop's frames come from the frame cache, so
     the model runs once per distinct motion frame and repeated frames are pixel-identical."""
     from pghm.body import load_body
-    from pghm.data.open_motion import open_motion
+    from pghm.motion.open_motion import open_motion
 
     motion = open_motion("walk", load_body("anny"))
     fps = 6.0

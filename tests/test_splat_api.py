@@ -12,10 +12,10 @@ import warnings
 import pytest
 import torch
 
+from benchmarks.splat_measure import SWEEP, body_scene, pareto_front, run_sweep
 from pghm.cli.main import main as pghm_main
 from pghm.errors import PghmError
 from pghm.splat import Camera, SplatSettings, _render, native, render
-from pghm.splat.benchmark import SWEEP, body_scene, pareto_front, run_sweep
 
 
 def tiny_gaussians(num_gaussians: int = 6, seed: int = 0):
@@ -243,3 +243,13 @@ def test_sweep_runs_small(tmp_path):
 def test_bench_cli_rejects_unknown_name(capsys):
     assert pghm_main(["bench", "nonsense"]) == 2
     assert "unknown benchmark" in capsys.readouterr().err
+
+
+def test_bench_cli_outside_a_source_checkout_says_so_in_one_line(tmp_path, monkeypatch, capsys):
+    """An installed wheel has no benchmarks/: pghm bench names what is missing, exit status 2."""
+    from pghm.cli import bench
+
+    monkeypatch.setattr(bench, "LAB", tmp_path / "benchmarks")
+    assert pghm_main(["bench", "splat", "--out", str(tmp_path / "out")]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "source checkout" in error and "splat_measure.py" in error and len(error.splitlines()) == 1

@@ -6,7 +6,7 @@ import json
 
 from conftest import absolute_paths
 
-from pghm import stress_report
+from benchmarks import stress_report
 
 
 def test_record_names_no_directory_of_the_machine(tmp_path):

@@ -16,9 +16,9 @@ import pytest
 from PIL import Image
 
 from pghm.cli.main import main as cli_main
-from pghm.data.subject import Dataset, Subject, SubjectArrays, check, image_name, npz_bytes, write_image, write_subject
-from pghm.data.synth import generate, load_config
 from pghm.errors import DatasetError
+from pghm.subject import Dataset, Subject, SubjectArrays, check, image_name, npz_bytes, write_image, write_subject
+from pghm.synth import generate, load_config
 
 
 @pytest.fixture(scope="module")

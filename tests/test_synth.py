@@ -18,8 +18,10 @@ import roma
 import torch
 
 from pghm.cli.main import main as cli_main
-from pghm.data.subject import Subject, check
-from pghm.data.synth import (
+from pghm.errors import PghmError
+from pghm.gl.context import headless_context
+from pghm.subject import Subject, check
+from pghm.synth import (
     SynthConfig,
     build_clothed_body,
     generate,
@@ -28,13 +30,11 @@ from pghm.data.synth import (
     pose_clothed_body,
     sample_identity,
 )
-from pghm.data.synth.cameras import intrinsics, look_at
-from pghm.data.synth.cloth import WRINKLE_JOINTS, wrinkle_amplitudes
-from pghm.data.synth.identity import ANNY_SHAPE_RANGES
-from pghm.data.synth.poses import add_pose_noise
-from pghm.data.synth.render import Lighting, MeshRenderer
-from pghm.errors import PghmError
-from pghm.gl.context import headless_context
+from pghm.synth.cameras import intrinsics, look_at
+from pghm.synth.cloth import WRINKLE_JOINTS, wrinkle_amplitudes
+from pghm.synth.identity import ANNY_SHAPE_RANGES
+from pghm.synth.poses import add_pose_noise
+from pghm.synth.render import Lighting, MeshRenderer
 
 BBOX_TOLERANCE_PX = 1
 """Silhouette vs projected-vertex bounding boxes: the mask keeps pixels at least half
@@ -382,7 +382,7 @@ def test_monocular_capture_holds_out_novel_poses_and_views(body, tmp_path):
 def test_monocular_motion_on_the_spot(body):
     """``mono_motion``: another motion kind instead of the walk, in place (the root moves only
     vertically), seen by the same panning camera; the walk travels; an unknown kind is refused."""
-    from pghm.data.synth.video import walk_config
+    from pghm.synth.video import walk_config
 
     squat = plan_subject(walk_config(12, 48, 40, 64, motion="squat"), body, 0, 0)
     walk = plan_subject(walk_config(12, 48, 40, 64), body, 0, 0)

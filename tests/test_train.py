@@ -34,7 +34,7 @@ def prior_config(steps: int, **loop) -> PriorConfig:
 def fixed_loss(model, data: TrainingData) -> float:
     """The objective of ``model`` (a PGHM) on a fixed set of images (every training image of both identities)."""
     from pghm.train.loop import AvatarObjective
-    from pghm.train.prior import GeometryCache
+    from pghm.train.run_setup import GeometryCache
 
     geometries = GeometryCache(data, model.config, None)
     objective = AvatarObjective(model, None, None, LoopConfig().loss, None)
@@ -237,7 +237,7 @@ def test_test_time_pose_refinement_moves_shifted_poses_back(tiny_dataset, prior_
     evaluation's PSNR rises; the avatar's parameters are untouched."""
     from pghm.train.evaluate import evaluate
     from pghm.train.fit import POSE_LR, FitConfig
-    from pghm.train.test_poses import refine_poses
+    from pghm.train.pose_refine import refine_poses
 
     avatar = tiny_avatar(tiny_dataset / "subject_000", prior_file, tmp_path / "a.pt", 4, 4)
     shifted = shifted_subject(tiny_dataset / "subject_000", tmp_path / "shifted")
@@ -256,7 +256,7 @@ def test_refinement_moves_poses_further_when_the_subject_states_them_noisier(tin
     error) rather than the synthetic 1 cm: the prior holds the corrections back less, and the
     refinement removes more of the shift."""
     from pghm.train.fit import POSE_LR, FitConfig
-    from pghm.train.test_poses import refine_poses
+    from pghm.train.pose_refine import refine_poses
 
     avatar = tiny_avatar(tiny_dataset / "subject_000", prior_file, tmp_path / "a.pt", 4, 4)
     left = {}

@@ -177,7 +177,7 @@ def test_orbit_pan_zoom_and_snaps():
 
 
 def test_sliders_compose_after_the_motion_rotation(body):
-    from pghm.data.open_motion import open_motion
+    from pghm.motion.open_motion import open_motion
 
     motion = open_motion("arm_raises", body)
     state = PoseState(motion=motion)
@@ -194,7 +194,7 @@ def test_sliders_compose_after_the_motion_rotation(body):
 
 
 def test_clock_loops_or_stops(body):
-    from pghm.data.open_motion import open_motion
+    from pghm.motion.open_motion import open_motion
 
     motion = open_motion("walk", body)  # 120 frames at 30 fps
     state = PoseState(motion=motion, playing=True)
@@ -223,7 +223,7 @@ def test_driver_reuses_arrays_only_for_the_same_output_and_set():
 
 
 def test_the_clip_list_offers_rest_the_procedural_and_the_shipped_clips(monkeypatch):
-    from pghm.data.procedural import PROCEDURAL_MOTIONS
+    from pghm.motion.procedural import PROCEDURAL_MOTIONS
     from viewer.scene import clip_choices, clip_index
     from viewer.settings import SHIPPED_MOTIONS
 
@@ -243,8 +243,8 @@ def test_the_clip_list_offers_rest_the_procedural_and_the_shipped_clips(monkeypa
 def test_an_interrupted_evaluation_keeps_its_finished_stages_and_resumes_to_the_same_gaussians(body):
     """Interrupt after the first stage (E_u / D_static); evaluating again finishes from there:
     E_u ran once in all, and the Gaussians equal an uninterrupted driver's."""
-    from pghm.data.procedural import procedural_motion
     from pghm.model.evaluator import Interrupted
+    from pghm.motion.procedural import procedural_motion
     from pghm.render import AvatarDriver
 
     avatar = development_avatar(SMALL, seed=3)

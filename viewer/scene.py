@@ -23,9 +23,9 @@ import roma
 import torch
 
 from pghm.body import CANONICAL_JOINTS, BodyPose
-from pghm.data.motion import Motion
-from pghm.data.open_motion import REST, motion_names, open_motion
 from pghm.errors import PghmError
+from pghm.motion.motion import Motion
+from pghm.motion.open_motion import REST, motion_names, open_motion
 from pghm.render import DEFAULT_FOV_Y, AvatarDriver, Framing, GaussianArrays, GaussianSet, frame_points
 from pghm.uv.regions import RegionMap, region_map
 from viewer.camera import OrbitView

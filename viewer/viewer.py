@@ -33,7 +33,7 @@ from pghm.render import GaussianSet
 from pghm.render.frame_cache import DEFAULT_BUDGET_MB, MEGABYTE, FrameCache
 from viewer.camera import OrbitController
 from viewer.dynamic_resolution import ResolutionController, ResolutionSettings
-from viewer.panels import PanelState, draw_panels, handle_mouse
+from viewer.panels import PanelState, ViewerPanels
 from viewer.pipeline import FrameStatus, ScenePipeline, Shown
 from viewer.recording import Recording, RecordSource, save_png, start_recording
 from viewer.scene import AvatarScene
@@ -73,7 +73,7 @@ class _Cache:
     offset: np.ndarray | None = None
 
 
-class Viewer:
+class Viewer(ViewerPanels):
     """The live viewer of one avatar or prior file.
 
     Args:
@@ -203,8 +203,8 @@ class Viewer:
         window = self.window
         window.poll()
         window.begin_ui()
-        draw_panels(self)
-        handle_mouse(self)
+        self.draw_panels()
+        self.handle_mouse()
 
         recording = self._requests.recording
         if recording is not None and recording.source == "motion":

@@ -56,7 +56,7 @@ from torch import Tensor
 from pghm.body import BodyModel, load_body
 from pghm.body.model import CANONICAL_JOINTS
 from pghm.body.skinning import forward_kinematics, kinematic_levels, lbs
-from pghm.capture.config import HEIGHT_RANGE_M
+from pghm.capture.config import HEIGHT_RANGE_M, BodyFitConfig
 from pghm.capture.landmarks import BODY_LANDMARKS, LANDMARK_NAMES, NUM_LANDMARKS, landmark_regressor
 from pghm.capture.pose_prior import load_pose_prior, robust_mahalanobis
 from pghm.capture.swaps import Landmarks, repair_swaps
@@ -104,109 +104,6 @@ PRIOR_WEIGHTS = {
 }
 """Relative pose-prior weight per fitted joint (1 for the others): the spine, collars and
 ankles are weakly observed by the landmarks and move little."""
-
-
-@dataclass(frozen=True)
-class BodyFitConfig:
-    """Options of :func:`fit_body`."""
-
-    body: str = "anny"
-    """Body model backend (only Anny's landmark correspondence is measured)."""
-
-    default_fov_deg: float = 60.0
-    """Field of view over the image's longer side assumed when the intrinsics are unknown
-    (a phone's main camera is 60-70 degrees); the fit refines it."""
-
-    fit_focal: bool = True
-    """Refine the focal length when the intrinsics are unknown."""
-
-    steps: tuple[int, int, int] = (60, 200, 300)
-    """Adam steps of the three stages (camera/root, pose, shape + silhouette). The silhouette
-    stage sees ``silhouette_frames`` frames a step, so each frame of a 100-frame video is
-    aligned to its mask about 100 times."""
-
-    learning_rate: float = 0.03
-    """Adam step for rotations (radians) and the shape logits; translation uses a tenth."""
-
-    min_confidence: float = 0.3
-    """Landmarks below this confidence are ignored."""
-
-    robust_sigma: float = 0.06
-    """Geman-McClure scale of the 2D terms, as a fraction of the person's height."""
-
-    weight_2d: float = 1.0
-    weight_3d: float = 0.5
-    huber_3d_m: float = 0.05
-    weight_outside: float = 30.0
-    weight_coverage: float = 10.0
-    weight_smooth: float = 50.0
-    weight_pose: float = 0.002
-    weight_motion_prior: float = 0.2
-    motion_prior_scale: float = 20.0
-    """The pose prior learned from motion capture (:mod:`pghm.capture.pose_prior`): its weight, and
-    the squared Mahalanobis distance c at which its robust penalty saturates (0 weight: off).
-    Measured on capture-bench's walks (seeds 0-2, front end cached): PA-MPJPE 47.3 -> 38.3 mm on
-    plain backgrounds and 56.2 -> 47.2 over photographs; a plain Gaussian (no saturation) gains
-    as much on walks but triples the error of a video of arm raises, which the clips never show
-    (36.6 -> 116 mm); saturating at c = 20 keeps it at 35.5 (docs/capture.md)."""
-    weight_limits: float = 1.0
-    weight_focal: float = 0.1
-    weight_shape: float = 1.0
-    """Weights of the objective's terms (module docstring); weight_focal pulls log f to the
-    default, weight_shape the phenotypes to Anny's average (MediaPipe's landmarks over
-    clothes hardly tell the shape: without it the walker of the mono preset's seed 4 came
-    out far heavier, weight 0.85 for a true 0.38, at the same joint error). weight_3d is
-    low because MediaPipe's world landmarks are 10-30 cm off at the wrists and feet (in
-    depth above all) where its 2D landmarks are 2-3 % of the height off: on capture-bench's
-    48-frame videos 2 -> 0.5 took the 2D error from 1.82 to 1.74 % (plain) and 2.55 to
-    2.41 % (photographs), PA-MPJPE from 60.4 to 58.7 mm over photographs; 0.25 or 6 did
-    not do better. The mask terms are strong (30 and 10, from 1 and 0.3) so that the body's
-    outline, not the landmarks' bias, places it: on capture-bench's seed 0-1 videos (front end
-    cached) the body mesh's silhouette IoU against the true masks rose by 0.02-0.03 and the 2D
-    error fell by 0.1-0.2 % of the height; 300 and 100 did no better (docs/capture.md).
-    weight_smooth 100 -> 50 (with the front end's mirrored pass, 100-frame videos, seeds 0-2):
-    MPJPE / PA-MPJPE / 2D 75.6 / 49.1 / 1.70 % -> 74.7 / 47.5 / 1.57 % (plain), 83.8 / 57.3 /
-    2.10 % -> 83.3 / 56.4 / 2.01 % (photographs); 25 or 300 did worse: the gait's fast leg
-    swings are real accelerations."""
-
-    silhouette_vertices: int = 1000
-    """Mesh vertices (an even subsample) tested against the mask."""
-
-    coverage_samples: int = 128
-    """Mask pixels per frame that the body should cover."""
-
-    silhouette_frames: int = 32
-    """Frames (drawn at random each step) on which the mask terms are evaluated: the shape
-    they mostly inform is shared, and their cost stays independent of the video's length."""
-
-    mask_size: int = 128
-    """Longest side (pixels) at which the masks are compared."""
-
-    repair_swaps: bool = True
-    """Undo MediaPipe's left/right label swaps (the whole body mirrored, legs or arms traded)
-    found over time (:mod:`pghm.capture.swaps`) before fitting."""
-
-    seed: int = 0
-    """Random subsampling of vertices and mask pixels."""
-
-    height_m: float | None = None
-    """The person's height in metres when known (``pghm capture --height``): the shape starts, and
-    the shape prior pulls, at Anny's average body with its height phenotype set to it
-    (:func:`shape_of_height`), and the shape stage holds the rest body's height to it (the term
-    ``weight_height ((h(s) - height_m) / HEIGHT_SCALE_M)^2``, h the crown-to-sole extent). One
-    uncalibrated video does not tell a person's size: without it every walker of capture-bench,
-    1.68-1.89 m tall, was fitted 1.60-1.62 m (docs/capture.md)."""
-    weight_height: float = 1.0
-    """Weight of the height term (untuned: at 1 the fitted height is the given one to the millimetre)."""
-
-    def validate(self) -> BodyFitConfig:
-        if self.body != "anny":
-            raise PghmError(f"body fit: only the anny body has a measured landmark correspondence, got {self.body!r}")
-        if not 10.0 <= self.default_fov_deg <= 150.0:
-            raise PghmError(f"body fit: default_fov_deg must be 10 to 150 degrees, got {self.default_fov_deg}")
-        if len(self.steps) != 3 or min(self.steps) < 0:
-            raise PghmError(f"body fit: steps must be three non-negative counts, got {self.steps}")
-        return self
 
 
 @dataclass
@@ -492,180 +389,284 @@ def fit_body(observations: Observations, config: BodyFitConfig | None = None) ->
 
 
 def _fit(observations: Observations, config: BodyFitConfig) -> BodyFit:
-    frames = _check(observations)
-    rng = np.random.default_rng(config.seed)
-    body = load_body(config.body)
-    skeleton = _skeleton(body)
-    data = _prepare(observations, config, rng)
-    regressor_index, regressor_weights = landmark_regressor(body.num_vertices)
-    silhouette = torch.as_tensor(np.sort(rng.choice(body.num_vertices, config.silhouette_vertices, replace=False)))
-    vertex_ids = torch.cat([regressor_index.reshape(-1), silhouette])
-    weights = (body.skin_weights[vertex_ids] @ skeleton.fold).contiguous()
-    shape_model = _ShapeModel(body, vertex_ids, skeleton.bones)
-    shape0 = body.default_shape() if config.height_m is None else shape_of_height(body, config.height_m)
-    shape_model.linearise(shape0)
-    # The crown and the lowest sole of the rest body: its height, linear in the shape as the rest is.
-    height_model = None
-    if config.height_m is not None:
-        rest_y = body.rest(shape0).vertices[:, 1]
-        height_model = _ShapeModel(body, torch.stack([rest_y.argmax(), rest_y.argmin()]), [])
-        height_model.linearise(shape0)
-    shape_models = [model for model in (shape_model, height_model) if model is not None]
-    levels = kinematic_levels(skeleton.parents)
-    num_land = len(BODY_LANDMARKS)
-    hips = [BODY_LANDMARKS.index(LANDMARK_NAMES.index(name)) for name in HIPS]
-    torso = [BODY_LANDMARKS.index(LANDMARK_NAMES.index(name)) for name in TORSO]
+    problem = _BodyFitProblem(observations, config)
+    terms = problem.minimise()
+    return problem.result(terms)
 
-    camera = torch.eye(4)
-    camera[:3, :3] = torch.as_tensor(CAMERA_LOOK, dtype=torch.float32)
-    if observations.K is not None:
-        K = torch.as_tensor(np.asarray(observations.K, np.float32))  # noqa: N806
-        focal0 = float(K[0, 0] + K[1, 1]) / 2
-        centre = K[:2, 2].clone()
-    else:
-        focal0, principal = default_intrinsics(observations, config.default_fov_deg)
-        centre = torch.as_tensor(principal, dtype=torch.float32)
-    log_focal = torch.tensor(np.log(focal0), dtype=torch.float32, requires_grad=True)
-    fit_focal = observations.K is None and config.fit_focal
 
-    num_marks = regressor_index.numel()
+class _BodyFitProblem:
+    """The body fit as an optimisation problem (SMPLify's layout): the observations' tensors, the
+    free parameters, and one method per term of the objective in the module docstring.
+
+    Free parameters: ``root`` (F, 3) and ``pose`` (F, B - 1, 3) axis-angle, ``translation`` (F, 3)
+    metres, ``shape_logit`` (S,) (the phenotypes through a sigmoid) and ``log_focal`` (a scalar,
+    optimised only when the intrinsics are unknown and ``config.fit_focal``).
+    """
+
+    def __init__(self, observations: Observations, config: BodyFitConfig) -> None:
+        self.config = config
+        self.frames = _check(observations)
+        self.rng = np.random.default_rng(config.seed)
+        self.body = body = load_body(config.body)
+        self.skeleton = _skeleton(body)
+        self.data = _prepare(observations, config, self.rng)
+        self._build_body_models()
+        self.levels = kinematic_levels(self.skeleton.parents)
+        self.hips = [BODY_LANDMARKS.index(LANDMARK_NAMES.index(name)) for name in HIPS]
+        self.torso = [BODY_LANDMARKS.index(LANDMARK_NAMES.index(name)) for name in TORSO]
+        self._set_camera(observations)
+        self._initialise()
+        self._build_pose_priors()
+
+    def _build_body_models(self) -> None:
+        """The skinned vertices (landmark regressor's, then a silhouette subsample), their folded
+        weights, and the rest body (and its height) linear in the shape around the start shape."""
+        body, config = self.body, self.config
+        self.regressor_index, self.regressor_weights = landmark_regressor(body.num_vertices)
+        silhouette = torch.as_tensor(
+            np.sort(self.rng.choice(body.num_vertices, config.silhouette_vertices, replace=False))
+        )
+        vertex_ids = torch.cat([self.regressor_index.reshape(-1), silhouette])
+        self.weights = (body.skin_weights[vertex_ids] @ self.skeleton.fold).contiguous()
+        self.num_marks = self.regressor_index.numel()
+        self.shape_model = _ShapeModel(body, vertex_ids, self.skeleton.bones)
+        self.shape0 = body.default_shape() if config.height_m is None else shape_of_height(body, config.height_m)
+        self.shape_model.linearise(self.shape0)
+        # The crown and the lowest sole of the rest body: its height, linear in the shape as the rest is.
+        self.height_model = None
+        if config.height_m is not None:
+            rest_y = body.rest(self.shape0).vertices[:, 1]
+            self.height_model = _ShapeModel(body, torch.stack([rest_y.argmax(), rest_y.argmin()]), [])
+            self.height_model.linearise(self.shape0)
+
+    def _set_camera(self, observations: Observations) -> None:
+        """The static camera looking at the body, and the intrinsics: given, or the default's to refine."""
+        self.camera = torch.eye(4)
+        self.camera[:3, :3] = torch.as_tensor(CAMERA_LOOK, dtype=torch.float32)
+        if observations.K is not None:
+            K = torch.as_tensor(np.asarray(observations.K, np.float32))  # noqa: N806
+            self.focal0 = float(K[0, 0] + K[1, 1]) / 2
+            self.centre = K[:2, 2].clone()
+        else:
+            self.focal0, principal = default_intrinsics(observations, self.config.default_fov_deg)
+            self.centre = torch.as_tensor(principal, dtype=torch.float32)
+        self.log_focal = torch.tensor(np.log(self.focal0), dtype=torch.float32, requires_grad=True)
+        self.fit_focal = observations.K is None and self.config.fit_focal
+
+    def _initialise(self) -> None:
+        """Root rotation from MediaPipe's torso (Procrustes against the rest body's torso landmarks),
+        root position from the 2D-3D correspondence at the default focal; pose at rest."""
+        frames, hips, bones = self.frames, self.hips, len(self.skeleton.bones)
+        rest_marks, _ = self.posed(torch.zeros(frames, bones, 3), torch.zeros(frames, 3), self.shape0)
+        rest_rel = rest_marks - rest_marks[:, hips].mean(1, keepdim=True)
+        torso_w = self.data.weights[:, self.torso] + 1e-3
+        rotation0 = _procrustes_rotation(rest_rel[:, self.torso], self.data.world3d[:, self.torso], torso_w)
+        position = _hip_positions(self.data, self.focal0, self.centre)  # (F, 3) camera frame
+        hip_world = (position - self.camera[:3, 3]) @ self.camera[:3, :3]
+        rest_hip = rest_marks[0, hips].mean(0)
+        root_joint = self.shape_model(self.shape0)[1][0]
+        # posed hip = R (rest_hip - root_joint) + root_joint + t.
+        translation0 = hip_world - (rotation0 @ (rest_hip - root_joint)) - root_joint
+        self.root = roma.rotmat_to_rotvec(rotation0).clone().requires_grad_(True)
+        self.translation = translation0.clone().requires_grad_(True)
+        self.pose = torch.zeros(frames, bones - 1, 3, requires_grad=True)
+        self.shape_logit = torch.logit(self.shape0.clamp(0.02, 0.98)).clone().requires_grad_(True)
+
+    def _build_pose_priors(self) -> None:
+        """Per-joint L2 weights, the learned pose prior (None when its weight is 0), hinge ranges."""
+        fitted_names = {self.body.joint_map[name]: name for name in FITTED_JOINTS}
+        fitted = [fitted_names[bone] for bone in self.skeleton.bones[1:]]
+        self.prior = torch.tensor([PRIOR_WEIGHTS.get(name, 1.0) for name in fitted])
+        self.motion_prior = None
+        if self.config.weight_motion_prior > 0:
+            self.motion_prior = load_pose_prior().precision(fitted)
+        self.hinge_rows = [r - 1 for r in self.skeleton.hinge_rows]
+        self.hinge_low = torch.tensor([HINGE_RANGE[n.split("_")[1]][0] for n in HINGES])
+        self.hinge_high = torch.tensor([HINGE_RANGE[n.split("_")[1]][1] for n in HINGES])
 
     def posed(
-        rotvecs: Tensor, translation: Tensor, shape: Tensor, subset: Tensor | None = None
+        self, rotvecs: Tensor, translation: Tensor, shape: Tensor, subset: Tensor | None = None
     ) -> tuple[Tensor, Tensor]:
         """(F, L, 3) world landmarks, and (F_subset, N, 3) silhouette vertices of the frames ``subset``."""
-        rest_vertices, rest_joints = shape_model(shape)
+        rest_vertices, rest_joints = self.shape_model(shape)
         rotmats = roma.rotvec_to_rotmat(rotvecs)
-        transforms = forward_kinematics(rotmats, rest_joints, translation, skeleton.parents, levels)
-        marks = lbs(rest_vertices[:num_marks], weights[:num_marks], transforms).reshape(frames, num_land, -1, 3)
-        marks = (regressor_weights[None, ..., None] * marks).sum(-2)
+        transforms = forward_kinematics(rotmats, rest_joints, translation, self.skeleton.parents, self.levels)
+        n = self.num_marks
+        marks = lbs(rest_vertices[:n], self.weights[:n], transforms).reshape(self.frames, len(BODY_LANDMARKS), -1, 3)
+        marks = (self.regressor_weights[None, ..., None] * marks).sum(-2)
         if subset is None:
             return marks, marks[:0]
-        return marks, lbs(rest_vertices[num_marks:], weights[num_marks:], transforms[subset])
+        return marks, lbs(rest_vertices[n:], self.weights[n:], transforms[subset])
 
-    # Initialisation: root rotation from MediaPipe's torso (Procrustes against the rest
-    # body's torso landmarks), root position from the 2D-3D correspondence at the default focal.
-    rest_marks, _ = posed(torch.zeros(frames, len(skeleton.bones), 3), torch.zeros(frames, 3), shape0)
-    rest_rel = rest_marks - rest_marks[:, hips].mean(1, keepdim=True)
-    torso_w = data.weights[:, torso] + 1e-3
-    rotation0 = _procrustes_rotation(rest_rel[:, torso], data.world3d[:, torso], torso_w)
-    position = _hip_positions(data, focal0, centre)  # (F, 3) camera frame
-    hip_world = (position - camera[:3, 3]) @ camera[:3, :3]
-    rest_hip = rest_marks[0, hips].mean(0)
-    root_joint = shape_model(shape0)[1][0]
-    # posed hip = R (rest_hip - root_joint) + root_joint + t.
-    translation0 = hip_world - (rotation0 @ (rest_hip - root_joint)) - root_joint
+    # ------------------------------------------------------------- the terms
 
-    root = roma.rotmat_to_rotvec(rotation0).clone().requires_grad_(True)
-    translation = translation0.clone().requires_grad_(True)
-    pose = torch.zeros(frames, len(skeleton.bones) - 1, 3, requires_grad=True)
-    shape_logit = torch.logit(shape0.clamp(0.02, 0.98)).clone().requires_grad_(True)
-    hinge_rows = [r - 1 for r in skeleton.hinge_rows]
-    fitted_names = {body.joint_map[name]: name for name in FITTED_JOINTS}
-    prior = torch.tensor([PRIOR_WEIGHTS.get(fitted_names[bone], 1.0) for bone in skeleton.bones[1:]])
-    motion_prior = None
-    if config.weight_motion_prior > 0:
-        motion_prior = load_pose_prior().precision([fitted_names[bone] for bone in skeleton.bones[1:]])
-    hinge_low = torch.tensor([HINGE_RANGE[n.split("_")[1]][0] for n in HINGES])
-    hinge_high = torch.tensor([HINGE_RANGE[n.split("_")[1]][1] for n in HINGES])
+    def energy_2d(self, pixels: Tensor, used: Tensor) -> Tensor:
+        """Robust 2D reprojection error of the landmarks, in person heights."""
+        squared = ((pixels - self.data.points) ** 2).sum(-1) / self.data.height_px**2
+        return self.config.weight_2d * (used * _geman_mcclure(squared, self.config.robust_sigma)).sum() / self.frames
 
-    def objective(stage: int) -> tuple[Tensor, dict[str, Tensor]]:
-        shape = torch.sigmoid(shape_logit)
-        rotvecs = torch.cat([root[:, None], pose if stage > 0 else torch.zeros_like(pose)], 1)
+    def energy_3d(self, marks: Tensor, used: Tensor) -> Tensor:
+        """Huber error of the hip-centred landmarks against MediaPipe's metric world landmarks."""
+        relative = marks - marks[:, self.hips].mean(1, keepdim=True)
+        huber = self.config.huber_3d_m
+        error3d = torch.nn.functional.huber_loss(relative, self.data.world3d, reduction="none", delta=huber)
+        error3d = error3d.sum(-1)
+        return self.config.weight_3d * (used * error3d).sum() / self.frames / huber
+
+    def energy_focal(self) -> Tensor:
+        """log f held to the default focal length."""
+        return self.config.weight_focal * (self.log_focal - np.log(self.focal0)) ** 2
+
+    def energy_smooth(self, marks: Tensor) -> Tensor:
+        """Squared acceleration of the landmarks over time (frame gaps accounted for)."""
+        gaps = self.data.gaps[1:, None, None] * self.data.gaps[:-1, None, None]
+        accel = (marks[2:] - 2 * marks[1:-1] + marks[:-2]) / gaps
+        return self.config.weight_smooth * (accel**2).sum() / self.frames
+
+    def energy_pose(self) -> Tensor:
+        """Per-joint weighted L2 pose prior."""
+        return self.config.weight_pose * (self.prior[:, None] * self.pose**2).sum() / self.frames
+
+    def energy_motion_prior(self) -> Tensor:
+        """The learned pose prior's saturating Mahalanobis penalty."""
+        config = self.config
+        nll = robust_mahalanobis(self.pose.reshape(self.frames, -1), *self.motion_prior, config.motion_prior_scale)
+        return config.weight_motion_prior * nll.sum() / self.frames
+
+    def hinge_angles(self) -> Tensor:
+        """(F, H) each hinge's rotation about its axis, radians."""
+        return (self.pose[:, self.hinge_rows] * self.skeleton.hinge_axes).sum(-1)
+
+    def energy_limits(self, hinge: Tensor) -> Tensor:
+        """Hinges (``hinge``: :meth:`hinge_angles`) outside their range, and any hinge rotation off
+        its axis (twist)."""
+        twist = self.pose[:, self.hinge_rows] - hinge[..., None] * self.skeleton.hinge_axes
+        limits = torch.relu(self.hinge_low - hinge) + torch.relu(hinge - self.hinge_high)
+        return self.config.weight_limits * ((limits**2).sum() + (twist**2).sum()) / self.frames
+
+    def energy_shape(self, shape: Tensor) -> Tensor:
+        """The phenotypes held to the start shape (Anny's average, or the given height's)."""
+        return self.config.weight_shape * ((shape - self.shape0) ** 2).sum()
+
+    def energy_height(self, shape: Tensor) -> Tensor:
+        """The rest body's crown-to-sole height held to the given one."""
+        ends = self.height_model(shape)[0][:, 1]
+        height = (ends[0] - ends[1] - self.config.height_m) / HEIGHT_SCALE_M
+        return self.config.weight_height * height**2
+
+    def energy_outside(self, vpix: Tensor, subset: Tensor) -> Tensor:
+        """Silhouette vertices outside the mask: the mask complement's distance map read at them."""
+        grid = _map_grid(vpix, self.data.mask_step, self.data.outside.shape[-2:])
+        outside = torch.nn.functional.grid_sample(
+            self.data.outside[subset], grid[:, None], align_corners=False, padding_mode="border"
+        )
+        return self.config.weight_outside * (outside[:, 0, 0] / self.data.height_px).mean()
+
+    def energy_coverage(self, vpix: Tensor, subset: Tensor) -> Tensor:
+        """Mask pixels far from every silhouette vertex (robust, in person heights)."""
+        inside = self.data.inside[subset]
+        with torch.no_grad():  # only the nearest vertex of each mask pixel carries gradient
+            nearest = torch.cdist(inside, vpix).argmin(-1)
+        gap = (inside - torch.gather(vpix, 1, nearest[..., None].expand(-1, -1, 2))).square().sum(-1)
+        cover = _geman_mcclure(gap / self.data.height_px**2, self.config.robust_sigma) * self.data.inside_valid[subset]
+        return self.config.weight_coverage * cover.mean()
+
+    # ------------------------------------------------------------- stages
+
+    def objective(self, stage: int) -> tuple[Tensor, dict[str, Tensor]]:
+        """The sum of the terms stage 0 (camera, root), 1 (+ pose) or 2 (+ shape, masks) uses, and each term."""
+        shape = torch.sigmoid(self.shape_logit)
+        rotvecs = torch.cat([self.root[:, None], self.pose if stage > 0 else torch.zeros_like(self.pose)], 1)
         subset = None
         if stage > 1:
-            subset = torch.as_tensor(rng.choice(frames, min(frames, config.silhouette_frames), replace=False))
-        marks, verts = posed(rotvecs, translation, shape, subset)
-        focal = log_focal.exp()
-        pixels = _project(marks, focal, centre, camera)
-        sigma = config.robust_sigma
-        squared = ((pixels - data.points) ** 2).sum(-1) / data.height_px**2
-        # Stage 0 poses the body at rest: only the torso's landmarks are meaningful.
-        used = data.weights if stage > 0 else data.weights * torch.isin(torch.arange(num_land), torch.tensor(torso))
-        terms = {"2d": config.weight_2d * (used * _geman_mcclure(squared, sigma)).sum() / frames}
-        relative = marks - marks[:, hips].mean(1, keepdim=True)
-        error3d = torch.nn.functional.huber_loss(relative, data.world3d, reduction="none", delta=config.huber_3d_m)
-        error3d = error3d.sum(-1)
-        terms["3d"] = config.weight_3d * (used * error3d).sum() / frames / config.huber_3d_m
-        if fit_focal:
-            terms["focal"] = config.weight_focal * (log_focal - np.log(focal0)) ** 2
-        if stage > 0:
-            if frames > 2:
-                gaps = data.gaps[1:, None, None] * data.gaps[:-1, None, None]
-                accel = (marks[2:] - 2 * marks[1:-1] + marks[:-2]) / gaps
-                terms["smooth"] = config.weight_smooth * (accel**2).sum() / frames
-            hinge = (pose[:, hinge_rows] * skeleton.hinge_axes).sum(-1)
-            terms["pose"] = config.weight_pose * (prior[:, None] * pose**2).sum() / frames
-            if motion_prior is not None:
-                nll = robust_mahalanobis(pose.reshape(frames, -1), *motion_prior, config.motion_prior_scale)
-                terms["motion_prior"] = config.weight_motion_prior * nll.sum() / frames
-            twist = pose[:, hinge_rows] - hinge[..., None] * skeleton.hinge_axes
-            limits = torch.relu(hinge_low - hinge) + torch.relu(hinge - hinge_high)
-            terms["limits"] = config.weight_limits * ((limits**2).sum() + (twist**2).sum()) / frames
-        if stage > 1:
-            terms["shape"] = config.weight_shape * ((shape - shape0) ** 2).sum()
-            if height_model is not None:
-                ends = height_model(shape)[0][:, 1]
-                terms["height"] = config.weight_height * ((ends[0] - ends[1] - config.height_m) / HEIGHT_SCALE_M) ** 2
-            vpix = _project(verts, focal, centre, camera)
-            grid = _map_grid(vpix, data.mask_step, data.outside.shape[-2:])
-            outside = torch.nn.functional.grid_sample(
-                data.outside[subset], grid[:, None], align_corners=False, padding_mode="border"
+            subset = torch.as_tensor(
+                self.rng.choice(self.frames, min(self.frames, self.config.silhouette_frames), replace=False)
             )
-            terms["outside"] = config.weight_outside * (outside[:, 0, 0] / data.height_px).mean()
-            inside = data.inside[subset]
-            with torch.no_grad():  # only the nearest vertex of each mask pixel carries gradient
-                nearest = torch.cdist(inside, vpix).argmin(-1)
-            gap = (inside - torch.gather(vpix, 1, nearest[..., None].expand(-1, -1, 2))).square().sum(-1)
-            cover = _geman_mcclure(gap / data.height_px**2, sigma) * data.inside_valid[subset]
-            terms["coverage"] = config.weight_coverage * cover.mean()
+        marks, verts = self.posed(rotvecs, self.translation, shape, subset)
+        focal = self.log_focal.exp()
+        pixels = _project(marks, focal, self.centre, self.camera)
+        used = self.data.weights
+        if stage == 0:  # the body is at rest: only the torso's landmarks are meaningful
+            used = used * torch.isin(torch.arange(len(BODY_LANDMARKS)), torch.tensor(self.torso))
+        terms = {"2d": self.energy_2d(pixels, used), "3d": self.energy_3d(marks, used)}
+        if self.fit_focal:
+            terms["focal"] = self.energy_focal()
+        if stage > 0:
+            if self.frames > 2:
+                terms["smooth"] = self.energy_smooth(marks)
+            # Made before the pose terms: autograd sums the gradients reaching the pose in the order
+            # their ops were made, so moving this line changes the fit in its last bits.
+            hinge = self.hinge_angles()
+            terms["pose"] = self.energy_pose()
+            if self.motion_prior is not None:
+                terms["motion_prior"] = self.energy_motion_prior()
+            terms["limits"] = self.energy_limits(hinge)
+        if stage > 1:
+            terms["shape"] = self.energy_shape(shape)
+            if self.height_model is not None:
+                terms["height"] = self.energy_height(shape)
+            vpix = _project(verts, focal, self.centre, self.camera)
+            terms["outside"] = self.energy_outside(vpix, subset)
+            terms["coverage"] = self.energy_coverage(vpix, subset)
         return sum(terms.values()), terms
 
-    stages = [
-        [root, translation] + ([log_focal] if fit_focal else []),
-        [root, translation, pose] + ([log_focal] if fit_focal else []),
-        [root, translation, pose, shape_logit] + ([log_focal] if fit_focal else []),
-    ]
-    terms: dict[str, Tensor] = {}
-    for stage, (params, steps) in enumerate(zip(stages, config.steps)):
-        groups = [{"params": [p], "lr": config.learning_rate * (0.1 if p is translation else 1.0)} for p in params]
-        optimiser = torch.optim.Adam(groups)
-        for step in range(steps):
-            if stage == 2 and step == steps // 2:
-                for model in shape_models:
-                    model.linearise(torch.sigmoid(shape_logit).detach())
-            loss, terms = objective(stage)
-            optimiser.zero_grad()
-            loss.backward()
-            optimiser.step()
+    def stage_parameters(self) -> list[list[Tensor]]:
+        """The parameters each stage optimises: camera and root, then pose, then shape."""
+        focal = [self.log_focal] if self.fit_focal else []
+        root = [self.root, self.translation]
+        return [root + focal, [*root, self.pose, *focal], [*root, self.pose, self.shape_logit, *focal]]
 
-    with torch.no_grad():
-        shape = torch.sigmoid(shape_logit)
-        rotations = torch.zeros(frames, body.num_bones, 3)
-        rotations[:, skeleton.bones] = torch.cat([root[:, None], pose], 1)
-        focal = float(log_focal.exp())
-        marks, _ = posed(torch.cat([root[:, None], pose], 1), translation, shape)
-        pixels = _project(marks, log_focal.exp(), centre, camera)
-        visible = data.weights > 0
-        error_px = float((pixels - data.points).norm(dim=-1)[visible].mean()) if visible.any() else float("nan")
-        # Re-centre the world on the mean root position: X' = X - c, so world_to_camera gains R c.
-        offset = translation.mean(0)
-        camera_out = camera.clone()
-        camera_out[:3, 3] = camera[:3, 3] + camera[:3, :3] @ offset
-        cx, cy = float(centre[0]), float(centre[1])
-        K_out = np.array([[focal, 0.0, cx], [0.0, focal, cy], [0.0, 0.0, 1.0]], np.float32)  # noqa: N806
-        residuals = {f"term_{k}": float(v) for k, v in terms.items()}
-        residuals["landmark_error_px"] = error_px
-        residuals["person_height_px"] = data.height_px
-        residuals.update(data.repaired)
-    return BodyFit(
-        shape=shape.numpy().astype(np.float32),
-        rotations=rotations.numpy().astype(np.float32),
-        translation=(translation - offset).detach().numpy().astype(np.float32),
-        world_to_camera=camera_out.numpy().astype(np.float32),
-        K=K_out,
-        residuals=residuals,
-    )
+    def minimise(self) -> dict[str, Tensor]:
+        """Adam through the three stages; the last step's terms."""
+        config = self.config
+        terms: dict[str, Tensor] = {}
+        for stage, (params, steps) in enumerate(zip(self.stage_parameters(), config.steps)):
+            groups = [
+                {"params": [p], "lr": config.learning_rate * (0.1 if p is self.translation else 1.0)} for p in params
+            ]
+            optimiser = torch.optim.Adam(groups)
+            for step in range(steps):
+                if stage == 2 and step == steps // 2:
+                    for model in (self.shape_model, self.height_model):
+                        if model is not None:
+                            model.linearise(torch.sigmoid(self.shape_logit).detach())
+                loss, terms = self.objective(stage)
+                optimiser.zero_grad()
+                loss.backward()
+                optimiser.step()
+        return terms
+
+    def result(self, terms: dict[str, Tensor]) -> BodyFit:
+        """The fit in the subject format's world (re-centred on the mean root position), with residuals."""
+        frames, data = self.frames, self.data
+        with torch.no_grad():
+            shape = torch.sigmoid(self.shape_logit)
+            rotvecs = torch.cat([self.root[:, None], self.pose], 1)
+            rotations = torch.zeros(frames, self.body.num_bones, 3)
+            rotations[:, self.skeleton.bones] = rotvecs
+            focal = float(self.log_focal.exp())
+            marks, _ = self.posed(rotvecs, self.translation, shape)
+            pixels = _project(marks, self.log_focal.exp(), self.centre, self.camera)
+            visible = data.weights > 0
+            error_px = float((pixels - data.points).norm(dim=-1)[visible].mean()) if visible.any() else float("nan")
+            # Re-centre the world on the mean root position: X' = X - c, so world_to_camera gains R c.
+            offset = self.translation.mean(0)
+            camera_out = self.camera.clone()
+            camera_out[:3, 3] = self.camera[:3, 3] + self.camera[:3, :3] @ offset
+            cx, cy = float(self.centre[0]), float(self.centre[1])
+            K_out = np.array([[focal, 0.0, cx], [0.0, focal, cy], [0.0, 0.0, 1.0]], np.float32)  # noqa: N806
+            residuals = {f"term_{k}": float(v) for k, v in terms.items()}
+            residuals["landmark_error_px"] = error_px
+            residuals["person_height_px"] = data.height_px
+            residuals.update(data.repaired)
+        return BodyFit(
+            shape=shape.numpy().astype(np.float32),
+            rotations=rotations.numpy().astype(np.float32),
+            translation=(self.translation - offset).detach().numpy().astype(np.float32),
+            world_to_camera=camera_out.numpy().astype(np.float32),
+            K=K_out,
+            residuals=residuals,
+        )
 
 
 def default_intrinsics(observations: Observations, fov_deg: float) -> tuple[float, np.ndarray]:

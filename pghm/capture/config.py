@@ -1,8 +1,8 @@
 """The configuration of ``pghm capture``: one dataclass, every option of the command.
 
-The body fit's own settings (:class:`pghm.capture.bodyfit.BodyFitConfig`) nest inside as
-``body``; ``None`` takes its defaults. The body fit is imported only when the pipeline
-reaches it, so that reading the video and finding the person (and every bad-input error
+The body fit's own settings (:class:`BodyFitConfig`) nest inside as ``body``; ``None``
+takes its defaults. The body fit (:mod:`pghm.capture.bodyfit`) is imported only when the
+pipeline reaches it, so that reading the video and finding the person (and every bad-input error
 they raise) do not wait for torch and the body model to load.
 """
 
@@ -11,15 +11,11 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pghm.errors import PghmError
 from pghm.io.avatar import recorded_path
-
-if TYPE_CHECKING:
-    from pghm.capture.bodyfit import BodyFitConfig
 
 MIN_FRAMES = 8
 """Fewest frames with the person found that make a subject: with the default
@@ -38,14 +34,9 @@ DEFAULT_TEST_EVERY = 8
 """Every this-many-th kept frame goes to the test split."""
 
 DEFAULT_TARGET_FRAMES = 100
-"""Frames a longer video is thinned to when ``--every`` is not given: it is read one frame in
-floor(F / 100), keeping 100 to 199 (the rule nerfstudio's ``ns-process-data video`` uses, with its
-own target of 300). ``pghm fit`` takes a fixed number of steps, so frames beyond about a hundred
-add time, not detail: the capture's (about 0.2 s a frame here), and the fit's settling of its pose
-track (30 steps a training frame, docs/training.md). On 2 cores, mostly idle, the default fit of a
-300-frame capture took 8 minutes for its two stages and would have taken 35 more to settle; a
-minute of 30 frames/s video, three and a half hours. 100 frames is also what ``pghm fit`` was
-measured on end to end (bench_capture's d)."""
+"""Frames a longer video is thinned to when ``--every`` is not given: one frame in floor(F / 100)
+is read, keeping 100 to 199. ``pghm fit`` takes a fixed number of steps, so more frames add time,
+not detail (docs/lab/defaults.md, "Capture: frames kept from a long video")."""
 
 HEIGHT_RANGE_M = (1.12, 2.13)
 """Heights (metres) Anny's average body reaches with its height phenotype in [0, 1]: the range of
@@ -54,6 +45,95 @@ HEIGHT_RANGE_M = (1.12, 2.13)
 DEFAULT_CROP_MARGIN = 0.1
 """Margin added on each side of the region the person occupies, as a fraction of that
 region's longest side (room for a hand the segmentation clipped)."""
+
+
+@dataclass(frozen=True)
+class BodyFitConfig:
+    """Options of the body fit (:func:`pghm.capture.bodyfit.fit_body`)."""
+
+    body: str = "anny"
+    """Body model backend (only Anny's landmark correspondence is measured)."""
+
+    default_fov_deg: float = 60.0
+    """Field of view over the image's longer side assumed when the intrinsics are unknown
+    (a phone's main camera is 60-70 degrees); the fit refines it."""
+
+    fit_focal: bool = True
+    """Refine the focal length when the intrinsics are unknown."""
+
+    steps: tuple[int, int, int] = (60, 200, 300)
+    """Adam steps of the three stages (camera/root, pose, shape + silhouette). The silhouette
+    stage sees ``silhouette_frames`` frames a step, so each frame of a 100-frame video is
+    aligned to its mask about 100 times."""
+
+    learning_rate: float = 0.03
+    """Adam step for rotations (radians) and the shape logits; translation uses a tenth."""
+
+    min_confidence: float = 0.3
+    """Landmarks below this confidence are ignored."""
+
+    robust_sigma: float = 0.06
+    """Geman-McClure scale of the 2D terms, as a fraction of the person's height."""
+
+    weight_2d: float = 1.0
+    weight_3d: float = 0.5
+    huber_3d_m: float = 0.05
+    weight_outside: float = 30.0
+    weight_coverage: float = 10.0
+    weight_smooth: float = 50.0
+    weight_pose: float = 0.002
+    weight_motion_prior: float = 0.2
+    motion_prior_scale: float = 20.0
+    """The pose prior learned from motion capture (:mod:`pghm.capture.pose_prior`): its weight, and
+    the squared Mahalanobis distance c at which its robust penalty saturates (0 weight: off). The
+    saturation keeps motions the clips never show (arm raises) from being pulled to a walk."""
+    weight_limits: float = 1.0
+    weight_focal: float = 0.1
+    weight_shape: float = 1.0
+    """Weights of the objective's terms (module docstring of :mod:`pghm.capture.bodyfit`):
+    weight_focal pulls log f to the default, weight_shape the phenotypes to Anny's average (the
+    landmarks over clothes hardly tell the shape). weight_3d is low because MediaPipe's world
+    landmarks are far less accurate than its 2D ones; the mask terms are strong so that the
+    body's outline, not the landmarks' bias, places it; weight_smooth leaves the gait's fast leg
+    swings alone (docs/lab/defaults.md, "Body fit: the objective's weights")."""
+
+    silhouette_vertices: int = 1000
+    """Mesh vertices (an even subsample) tested against the mask."""
+
+    coverage_samples: int = 128
+    """Mask pixels per frame that the body should cover."""
+
+    silhouette_frames: int = 32
+    """Frames (drawn at random each step) on which the mask terms are evaluated: the shape
+    they mostly inform is shared, and their cost stays independent of the video's length."""
+
+    mask_size: int = 128
+    """Longest side (pixels) at which the masks are compared."""
+
+    repair_swaps: bool = True
+    """Undo MediaPipe's left/right label swaps (the whole body mirrored, legs or arms traded)
+    found over time (:mod:`pghm.capture.swaps`) before fitting."""
+
+    seed: int = 0
+    """Random subsampling of vertices and mask pixels."""
+
+    height_m: float | None = None
+    """The person's height in metres when known (``pghm capture --height``): the shape starts, and
+    the shape prior pulls, at Anny's average body with its height phenotype set to it
+    (:func:`pghm.capture.bodyfit.shape_of_height`), and the shape stage holds the rest body's
+    height to it (the term ``weight_height ((h(s) - height_m) / HEIGHT_SCALE_M)^2``, h the
+    crown-to-sole extent). One uncalibrated video does not tell a person's size."""
+    weight_height: float = 1.0
+    """Weight of the height term (untuned: at 1 the fitted height is the given one)."""
+
+    def validate(self) -> BodyFitConfig:
+        if self.body != "anny":
+            raise PghmError(f"body fit: only the anny body has a measured landmark correspondence, got {self.body!r}")
+        if not 10.0 <= self.default_fov_deg <= 150.0:
+            raise PghmError(f"body fit: default_fov_deg must be 10 to 150 degrees, got {self.default_fov_deg}")
+        if len(self.steps) != 3 or min(self.steps) < 0:
+            raise PghmError(f"body fit: steps must be three non-negative counts, got {self.steps}")
+        return self
 
 
 @dataclass

@@ -13,7 +13,7 @@ so it follows the body's shape and pose (the vertices surround the point, so the
 combination may lie inside the body, as a joint does).
 
 How the constants were measured (``benchmarks/derive_landmarks.py`` re-derives them):
-12 synthetic identities of the generator (``pghm.data.synth``, all five motion kinds,
+12 synthetic identities of the generator (``pghm.synth``, all five motion kinds,
 6 views in a ring, 8 poses each, 512 x 512, white background; 576 images), MediaPipe
 ``mediapipe==0.10.14`` ``solutions.pose.Pose(model_complexity=1, static_image_mode=True)``
 on each image, detections with visibility > 0.5 kept. For each landmark, softmax weights

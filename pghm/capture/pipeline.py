@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pghm.capture.config import CaptureConfig
+from pghm.capture.config import BodyFitConfig, CaptureConfig
 from pghm.capture.crop import (
     Region,
     crop_intrinsics,
@@ -42,9 +42,9 @@ from pghm.capture.frontend import (
     track_person,
 )
 from pghm.capture.video import ImageFolder, VideoFile, open_source, scaled_size
-from pghm.data.subject import SubjectArrays, write_image, write_subject
 from pghm.errors import PghmError, listed
 from pghm.io.outputs import check_output, staged_folder
+from pghm.subject import SubjectArrays, write_image, write_subject
 
 TRACKING_SIZE = 512
 """Longest side of the frames the person is tracked on (pass 1), pixels."""
@@ -59,20 +59,17 @@ WHITE = 255
 
 CUT_EDGE_FRACTION = 0.02
 """A mask reaches past the frame on an edge when it covers more than this fraction of the image's
-outermost row or column there: more than a fingertip. On the real video cut at the knees the legs
-cover 16 % of the bottom row (median over its frames); a walker's feet that reach the bottom of
-bench_capture's frames, up to 11 %."""
+outermost row or column there: more than a fingertip (docs/lab/defaults.md, "Capture: a person
+cut by the frame")."""
 CUT_FRAMES_FRACTION = 0.25
 """The share of the kept frames with the person running out of the frame from which capture warns:
-below it (a stride that reaches the edge now and then: 5-14 of bench_capture's 100 frames) most
-frames still show the whole body."""
+below it (a stride that reaches the edge now and then) most frames still show the whole body."""
 
 POSE_NOISE = {"rotation_std_deg": 9.5, "translation_std_m": 0.05}
 """The error of a capture's poses, written to meta.json as the scale of ``pghm fit``'s prior on its
-pose corrections (:func:`pghm.train.data.pose_noise`). Rotations: the per-axis RMS error of the
-canonical joints' local rotations against the truth over bench_capture's six videos (8.9-10.3
-degrees, 9.5 overall). Translation: the synthetic data's 1 cm scaled by the same factor (the
-captured camera's scale differs from the truth's, so its depth error has no common measure)."""
+pose corrections (:func:`pghm.train.data.pose_noise`): the joints' measured rotation error over
+bench_capture's videos, and the synthetic data's translation noise scaled alike
+(docs/lab/defaults.md, "Capture: the poses' stated error")."""
 
 
 def _warn(message: str) -> None:
@@ -318,7 +315,7 @@ def _write(folder: Path, config: CaptureConfig, front: FrontEnd) -> None:
     """Fit the body and write the subject's arrays and meta.json into ``folder`` (images are already there)."""
     import pghm
     from pghm.body import load_body
-    from pghm.capture.bodyfit import BodyFitConfig, fit_body
+    from pghm.capture.bodyfit import fit_body
 
     observations = front.observations
     body_config = config.body or BodyFitConfig()

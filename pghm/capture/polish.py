@@ -4,19 +4,18 @@ The body fit places the body from landmarks and masks to 1.1-1.6 % of the person
 (bench_capture's c), while an avatar's held-out frame rendered 0.27 % (under a pixel) off the pose
 it learned already loses 1.5 dB (``benchmarks/bench_pose_error.py``): no estimator that reads a frame
 without an avatar of the person is that close. The polish makes one: it personalises a prior on
-*every* frame of the capture (:func:`pghm.train.fit.fit` on :data:`~pghm.data.subject.ALL_SPLIT`,
+*every* frame of the capture (:func:`pghm.train.fit.fit` on :data:`~pghm.subject.ALL_SPLIT`,
 stage 2 correcting each frame's pose), settles the correction of each frame outside the training
 split against the finished avatar for :data:`POLISH_TRACK_STEPS` steps
-(:func:`pghm.train.test_poses.refine_poses`), and stores, for those held-out frames f,
+(:func:`pghm.train.pose_refine.refine_poses`), and stores, for those held-out frames f,
 
     rotations'[f, bones] = rotations[f, bones] + delta_r[f],    translation'[f] = translation[f] + delta_t[f]
 
 for the estimator's joints (``bones``), listing them in meta.json's ``aligned_frames``; the training
 frames' poses, shape, cameras, images and masks are unchanged, and the avatar is discarded. The
 training frames are left to ``pghm fit``, which corrects and settles their poses itself against the
-avatar it learns from them alone, and no test image reaches that avatar. Settling every frame, as
-the polish did until 2026-11-27, took 2.5 times as long and met d of issue 22 no better, though
-``pghm fit`` learned a 0.3-0.6 dB sharper avatar from its aligned training poses (docs/capture.md).
+avatar it learns from them alone, and no test image reaches that avatar. Settling every frame here
+too took 2.5 times as long and scored the held-out frames no better (docs/lab/capture-history.md).
 A test frame's pose has seen its own image, as any pose estimator's does, here once, in the capture,
 rather than against the evaluated avatar (the test-time refinement of InstantAvatar and GART, ``pghm
 eval --refine-poses``). It costs a fit and the held-out frames' settling: about 7 minutes for 100
@@ -34,13 +33,13 @@ from pathlib import Path
 import numpy as np
 
 from pghm.body import load_body
-from pghm.data.subject import ALL_SPLIT, Subject, write_subject
 from pghm.io.avatar import Avatar, recorded_path
 from pghm.model import ModelConfig
+from pghm.subject import ALL_SPLIT, Subject, write_subject
 from pghm.train.data import TrainingData
 from pghm.train.fit import POSE_LR, TRACK_STEPS, FitConfig, fit
+from pghm.train.pose_refine import refine_poses
 from pghm.train.pose_track import track_corrections
-from pghm.train.test_poses import refine_poses
 
 POLISH_TRACK_STEPS = TRACK_STEPS
 """Steps of each held-out frame's pose refinement against the finished avatar, as ``pghm fit``

@@ -20,7 +20,7 @@ which is m / 2, the Gaussian's negative log-likelihood, near the data and satura
 from it: a pose the clips never show (arms raised overhead) is left to the landmarks, while one
 they know (a stride) is pulled towards how people hold it. The data: the two real clips in
 ``assets/motion`` (a walk and a stand-sit-stand; MIT-licensed, from the tests of
-20tab/bvh-python; assets/motion/SOURCE.md), retargeted onto Anny by :func:`pghm.data.retarget.import_bvh`; the
+20tab/bvh-python; assets/motion/SOURCE.md), retargeted onto Anny by :func:`pghm.motion.retarget.import_bvh`; the
 statistics ship in ``pose_prior.npz`` beside this module (``scripts/build_pose_prior.py``
 rebuilds it). What it does, measured: docs/capture.md, "A pose prior from motion capture".
 """

@@ -7,14 +7,21 @@ Benchmarks live in :data:`BENCHMARKS` (name -> function of the parsed arguments)
 by adding an entry. ``splat`` sweeps the splatter's optional approximations on the body
 scene and reports, per setting, median time and error against the exact image. ``stress``
 runs the stress suite (tests/stress) and the loader fuzzer and writes their record as
-docs/stress.md (see :mod:`pghm.stress_report`).
+docs/stress.md.
+
+The measuring code is lab code, not the library's: it lives in the source checkout's
+``benchmarks/`` (``splat_measure.py``, ``stress_report.py``), which a wheel does not install,
+so ``pghm bench`` runs from a source checkout (elsewhere: one line saying so, exit status 2).
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import sys
 from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
 
 from pghm.cli.options import MAX_IMAGE_SIDE, Integer, Real
 from pghm.errors import PghmError
@@ -29,34 +36,46 @@ MAX_FUZZ_SECONDS = 86_400.0
 DEFAULT_OUT = Path("benchmarks") / "results"
 """Where JSON results go unless --out says otherwise."""
 
+LAB = Path(__file__).resolve().parents[2] / "benchmarks"
+"""The source checkout's benchmarks/ beside the package (absent from an installed wheel)."""
+
+
+def _lab_module(name: str) -> ModuleType:
+    """``benchmarks/<name>.py`` of the source checkout, loaded; a PghmError when it is not there."""
+    path = LAB / f"{name}.py"
+    if not path.is_file():
+        raise PghmError(f"pghm bench runs from a source checkout: {path} not found (benchmarks/ is not installed)")
+    spec = importlib.util.spec_from_file_location(f"_pghm_bench_{name}", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
 
 def _splat(args: argparse.Namespace) -> int:
     import torch
 
-    from pghm.splat.benchmark import format_table, run_sweep
-
+    measure = _lab_module("splat_measure")
     torch.set_num_threads(args.threads)
     output = check_output(args.out / "bench_splat_sweep.json")
     plot = check_output(args.plot if args.plot is not None else Path("docs") / "splat_pareto.png", option="--plot")
-    rows, front = run_sweep(args.gaussians or 10_000, args.resolution or 256, args.repeats or 15, output, plot)
-    print(format_table(rows, ["setting", "forward_ms", "forward_backward_ms", "max_abs", "psnr"]))
+    rows, front = measure.run_sweep(args.gaussians or 10_000, args.resolution or 256, args.repeats or 15, output, plot)
+    print(measure.format_table(rows, ["setting", "forward_ms", "forward_backward_ms", "max_abs", "psnr"]))
     print(f"Pareto frontier (forward+backward time vs max abs error): {', '.join(front)}")
     print(f"wrote {output} and {plot}")
     return 0
 
 
 def _stress(args: argparse.Namespace) -> int:
-    from pghm.stress_report import run_stress
-
     check_output(args.report, option="--report")
-    return run_stress(args.report, args.out, args.fuzz_seconds)
+    return _lab_module("stress_report").run_stress(args.report, args.out, args.fuzz_seconds)
 
 
 BENCHMARKS: dict[str, Callable[[argparse.Namespace], int]] = {"splat": _splat, "stress": _stress}
 """Benchmark name -> function of the parsed arguments returning an exit status."""
 
 
-def _run(args: argparse.Namespace) -> int:
+def cmd_bench(args: argparse.Namespace) -> int:
     if args.name not in BENCHMARKS:
         raise PghmError(f"unknown benchmark '{args.name}', expected one of {', '.join(sorted(BENCHMARKS))}")
     return BENCHMARKS[args.name](args)
@@ -90,4 +109,4 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=30.0,
         help="stress: time budget of the loader fuzzer (default 30)",
     )
-    parser.set_defaults(func=_run)
+    parser.set_defaults(func=cmd_bench)

@@ -26,7 +26,7 @@ from pghm.cli.options import MAX_IMAGE_SIDE, MAX_INDEX, Integer, Real
 from pghm.io.outputs import check_output
 
 
-def _capture(args: argparse.Namespace) -> int:
+def cmd_capture(args: argparse.Namespace) -> int:
     from pghm.capture.pipeline import capture
 
     check_output(args.out, inputs=[args.input], folder=True)
@@ -128,4 +128,4 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "frames (e.g. assets/prior.pt; about 7 minutes per 100 frames on 2 cores)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
-    parser.set_defaults(func=_capture)
+    parser.set_defaults(func=cmd_capture)

@@ -12,15 +12,15 @@ import argparse
 import sys
 
 from pghm.cli.options import Integer
-from pghm.data.subject import check, count_images
 from pghm.errors import EXIT_USER_ERROR
 from pghm.io.outputs import check_output
+from pghm.subject import check, count_images
 
 MIN_TILE, MAX_TILE = 16, 2048
 """Contact-sheet tile sides accepted, in pixels."""
 
 
-def _check(args: argparse.Namespace) -> int:
+def cmd_data_check(args: argparse.Namespace) -> int:
     problems = check(args.dir)
     for problem in problems:
         print(problem)
@@ -32,8 +32,8 @@ def _check(args: argparse.Namespace) -> int:
     return 0
 
 
-def _sheet(args: argparse.Namespace) -> int:
-    from pghm.data.synth.sheet import contact_sheet
+def cmd_data_sheet(args: argparse.Namespace) -> int:
+    from pghm.synth.sheet import contact_sheet
 
     check_output(args.out, inputs=[args.dir, args.mono])
     sheet = contact_sheet(args.dir, args.out, tile=args.tile, mono_dir=args.mono)
@@ -51,7 +51,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="validate a subject folder or a dataset of them; one line per problem, exit status 2 if any",
     )
     checker.add_argument("dir", help="a subject folder or a dataset folder")
-    checker.set_defaults(func=_check)
+    checker.set_defaults(func=cmd_data_check)
 
     sheet = commands.add_parser("sheet", help="a contact sheet: every subject from the front and the back")
     sheet.add_argument("dir", help="a dataset (or subject) folder")
@@ -60,4 +60,4 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sheet.add_argument(
         "--tile", type=Integer(MIN_TILE, MAX_TILE), default=256, help="tile size in pixels (default 256)"
     )
-    sheet.set_defaults(func=_sheet)
+    sheet.set_defaults(func=cmd_data_sheet)

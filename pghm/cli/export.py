@@ -8,9 +8,9 @@ from __future__ import annotations
 import argparse
 
 from pghm.cli.options import INDEX, Integer
-from pghm.data.motion import MAX_FRAMES
 from pghm.io.export import FRONT_DISTANCE, export_posed_ply
 from pghm.io.outputs import check_output
+from pghm.motion.motion import MAX_FRAMES
 
 
 def register(subparsers) -> None:
@@ -32,10 +32,10 @@ def register(subparsers) -> None:
     )
     parser.add_argument("--identity", type=INDEX, default=0, help="identity of a prior's bank (default %(default)s)")
     parser.add_argument("--body-model-path", default=None)
-    parser.set_defaults(func=run)
+    parser.set_defaults(func=cmd_export)
 
 
-def run(args: argparse.Namespace) -> int:
+def cmd_export(args: argparse.Namespace) -> int:
     check_output(args.out, inputs=[args.avatar, args.pose])
     count = export_posed_ply(
         args.avatar, args.pose, args.frame, args.out, args.view, args.identity, args.body_model_path

@@ -1,8 +1,10 @@
 """``pghm``: one entry point, one subcommand per job.
 
 Each subcommand lives in its own module under :mod:`pghm.cli` and exposes
-``register(subparsers)``, which adds its parser and sets ``func`` to a function taking the
-parsed arguments. The subcommands are thin: they parse, call a library function, print.
+``register(subparsers)``, which adds its parser and sets ``func`` to its handler, named
+``cmd_<command>`` (``cmd_<command>_<subcommand>`` for nested ones: ``cmd_motion_import``),
+taking the parsed arguments and returning the exit status. The subcommands are thin: they
+parse, call a library function, print.
 
 **Threads.** :func:`main` applies :mod:`pghm.cli.threads` before any subcommand imports torch:
 waiting OpenMP threads sleep, and torch takes one thread per core other processes leave free.
@@ -39,8 +41,8 @@ OUT_OF_MEMORY_TEXT = ("can't allocate memory", "out of memory", "not enough memo
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from pghm._fault_injection import interrupt_point
     from pghm.cli.options import OneLineParser
-    from pghm.test_hook import interrupt_point
 
     parser = OneLineParser(
         prog="pghm",

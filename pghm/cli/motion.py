@@ -18,13 +18,13 @@ import numpy as np
 
 from pghm.body import BODY_NAMES, BodyModel, RestBody, load_body
 from pghm.cli.options import Integer, Real
-from pghm.data.bvh import load_bvh
-from pghm.data.motion import MAX_FPS, MIN_FPS, Motion
-from pghm.data.procedural import MAX_PROCEDURAL_FRAMES, PROCEDURAL_MOTIONS, procedural_motion
-from pghm.data.retarget import RIG_MAPS, UNIT_SCALES, clip_facing, detect_rig, import_bvh, leg_length, retarget_bvh
 from pghm.errors import MotionFileError
 from pghm.io.atomic import save_figure
 from pghm.io.outputs import check_output
+from pghm.motion.bvh import load_bvh
+from pghm.motion.motion import MAX_FPS, MIN_FPS, Motion
+from pghm.motion.procedural import MAX_PROCEDURAL_FRAMES, PROCEDURAL_MOTIONS, procedural_motion
+from pghm.motion.retarget import RIG_MAPS, UNIT_SCALES, clip_facing, detect_rig, import_bvh, leg_length, retarget_bvh
 
 PREVIEW_VERTEX_STRIDE = 4
 """Plot every 4th vertex: enough points to read a pose, few enough to draw quickly."""
@@ -46,7 +46,7 @@ def _body(args: argparse.Namespace) -> BodyModel:
     return load_body(args.body, args.body_model_path)
 
 
-def _import(args: argparse.Namespace) -> int:
+def cmd_motion_import(args: argparse.Namespace) -> int:
     check_output(args.out, inputs=[args.file, args.body_model_path])
     motion = import_bvh(
         args.file,
@@ -61,7 +61,7 @@ def _import(args: argparse.Namespace) -> int:
     return 0
 
 
-def _make(args: argparse.Namespace) -> int:
+def cmd_motion_make(args: argparse.Namespace) -> int:
     check_output(args.out, inputs=[args.body_model_path])
     motion = procedural_motion(args.name, _body(args), frames=args.frames, fps=args.fps)
     motion.save(args.out)
@@ -76,7 +76,7 @@ def _summary(motion: Motion) -> str:
     )
 
 
-def _info(args: argparse.Namespace) -> int:
+def cmd_motion_info(args: argparse.Namespace) -> int:
     path = Path(args.file)
     if path.suffix.lower() == ".bvh":
         clip = load_bvh(path)
@@ -135,7 +135,7 @@ def _distinct_frames(body: BodyModel, rest: RestBody, motion: Motion, count: int
     return np.sort(np.array(chosen))
 
 
-def _preview(args: argparse.Namespace) -> int:
+def cmd_motion_preview(args: argparse.Namespace) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -197,7 +197,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="keep the clip's root trajectory size instead of fitting it to the body's legs",
     )
-    importer.set_defaults(func=_import)
+    importer.set_defaults(func=cmd_motion_import)
 
     maker = commands.add_parser("make", help="generate a procedural motion, save as .npz")
     maker.add_argument("name", choices=tuple(PROCEDURAL_MOTIONS), help="which motion")
@@ -209,11 +209,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     maker.add_argument("--fps", type=FPS, default=30.0, help="frames per second")
     _add_body_options(maker)
-    maker.set_defaults(func=_make)
+    maker.set_defaults(func=cmd_motion_make)
 
     info = commands.add_parser("info", help="frames, fps, duration and body of a motion (.npz) or BVH file")
     info.add_argument("file")
-    info.set_defaults(func=_info)
+    info.set_defaults(func=cmd_motion_info)
 
     preview = commands.add_parser(
         "preview", help="a contact sheet of each clip's most distinct poses (side and front) as an image"
@@ -223,4 +223,4 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     preview.add_argument("--frames-per-clip", type=Integer(1, MAX_PREVIEW_FRAMES), default=5)
     preview.add_argument("--dpi", type=Integer(MIN_DPI, MAX_DPI), default=80)
     _add_body_options(preview)
-    preview.set_defaults(func=_preview)
+    preview.set_defaults(func=cmd_motion_preview)

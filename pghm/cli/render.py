@@ -13,8 +13,8 @@ import sys
 from pathlib import Path
 
 from pghm.cli.options import INDEX, Integer, Real, Size
-from pghm.data.motion import MAX_FPS, MIN_FPS
 from pghm.errors import PghmError
+from pghm.motion.motion import MAX_FPS, MIN_FPS
 from pghm.render import DEFAULT_FPS, DEFAULT_SIZE, MAX_RENDER_FRAMES, RenderJob, render_video
 
 MAX_SECONDS = 1e6
@@ -88,10 +88,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--no-follow", action="store_true", help="keep the camera still when the body moves")
     parser.add_argument("--body-model-path", help="the SMPL-X model file, for SMPL-X avatars")
-    parser.set_defaults(func=run_render)
+    parser.set_defaults(func=cmd_render)
 
 
-def run_render(args: argparse.Namespace) -> int:
+def cmd_render(args: argparse.Namespace) -> int:
     job = RenderJob(
         avatar=args.avatar,
         out=args.out,

@@ -10,15 +10,15 @@ from __future__ import annotations
 import argparse
 
 from pghm.cli.options import SEED, Integer
-from pghm.data.synth.config import PRESETS, load_config
-from pghm.data.synth.generate import generate
 from pghm.io.outputs import check_output
+from pghm.synth.config import PRESETS, load_config
+from pghm.synth.generate import generate
 
 MAX_WORKERS = 64
 """Most render processes (each holds a GL context and a body model)."""
 
 
-def _synth(args: argparse.Namespace) -> int:
+def cmd_synth(args: argparse.Namespace) -> int:
     check_output(args.out, inputs=[args.config], folder=True)
     config = load_config(args.config)
     report = generate(config, args.seed, args.out, workers=args.workers, progress=not args.quiet)
@@ -49,4 +49,4 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="render processes (default 2, one per core)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    parser.set_defaults(func=_synth)
+    parser.set_defaults(func=cmd_synth)

@@ -124,7 +124,7 @@ def register(subparsers) -> None:
     )
     _model_arguments(prior)
     _common(prior, PriorConfig().loop)
-    prior.set_defaults(func=run_train_prior)
+    prior.set_defaults(func=cmd_train_prior)
 
     fit = subparsers.add_parser("fit", help="personalise a prior to one subject (monocular video)")
     fit.add_argument("subject_dir")
@@ -162,7 +162,7 @@ def register(subparsers) -> None:
         "print the table and write it to JSON",
     )
     _common(fit, fit_defaults.stage1)
-    fit.set_defaults(func=run_fit)
+    fit.set_defaults(func=cmd_fit)
 
     evaluate = subparsers.add_parser("eval", help="PSNR/SSIM/LPIPS of an avatar on a subject's held-out frames")
     evaluate.add_argument("avatar")
@@ -192,14 +192,14 @@ def register(subparsers) -> None:
         help="behind render and ground truth: white (default, the paper's), black, r,g,b in [0, 1] or #rrggbb",
     )
     evaluate.add_argument("--body-model-path", default=None)
-    evaluate.set_defaults(func=run_eval)
+    evaluate.set_defaults(func=cmd_eval)
 
 
 def _logging() -> None:
     logging.basicConfig(level=logging.INFO, format="pghm: %(message)s", stream=sys.stderr)
 
 
-def run_train_prior(args: argparse.Namespace) -> int:
+def cmd_train_prior(args: argparse.Namespace) -> int:
     from pghm.train.prior import train_prior
 
     check_output(args.out, inputs=[args.data_dir, args.body_model_path])
@@ -231,7 +231,7 @@ def run_train_prior(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_fit(args: argparse.Namespace) -> int:
+def cmd_fit(args: argparse.Namespace) -> int:
     from pghm.train.fit import fit
     from pghm.train.profile import profiled
 
@@ -274,7 +274,7 @@ def run_fit(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_eval(args: argparse.Namespace) -> int:
+def cmd_eval(args: argparse.Namespace) -> int:
     from pghm.train.evaluate import evaluate
 
     report = args.report or f"{args.avatar}.eval.json"

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pghm.splat._projection import ALPHA_MIN, COV_DILATION, FRUSTUM_CLAMP, NEAR_PLANE
+from pghm.splat.spec import ALPHA_MIN, COV_DILATION, FRUSTUM_CLAMP, NEAR_PLANE
 
 Box = tuple[int, int, int, int]
 """(x, y, width, height) in pixels, x from the left, y = image row (GL row of the target)."""

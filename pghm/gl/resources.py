@@ -13,7 +13,7 @@ import numpy as np
 
 import shaders
 from pghm.errors import PghmError
-from pghm.splat._projection import ALPHA_MAX, ALPHA_MIN, COV_DILATION, FRUSTUM_CLAMP, NEAR_PLANE
+from pghm.splat.spec import ALPHA_MAX, ALPHA_MIN, COV_DILATION, FRUSTUM_CLAMP, NEAR_PLANE
 
 TEXTURE_WIDTH = 1024
 """Texels per row: OpenGL 3.3 guarantees textures at least this wide."""
@@ -30,7 +30,7 @@ SPEC_DEFINES: dict[str, int | float] = {
     "TEXTURE_WIDTH": TEXTURE_WIDTH,
 }
 """The ``#define`` lines every program of :mod:`pghm.gl` is compiled with: the CPU splatter's
-constants (one definition, in :mod:`pghm.splat`) and the texture layout."""
+constants (one definition, :mod:`pghm.splat.spec`) and the texture layout."""
 
 
 def build_program(

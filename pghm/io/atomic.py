@@ -12,7 +12,7 @@ makes an output private (``tempfile.mkstemp`` would create it 0o600).
 Every writer in pghm and the viewer goes through here: ``tests/stress/test_nothing_lost.py``
 checks each one and kills writers mid-save.
 
-A kill test chooses where a save is interrupted through :func:`pghm.test_hook.save_point`,
+A kill test chooses where a save is interrupted through :func:`pghm._fault_injection.save_point`,
 called at the three states a save can be in: ``created``, ``written`` and ``renamed``.
 """
 
@@ -27,7 +27,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import BinaryIO
 
-from pghm.test_hook import save_point
+from pghm._fault_injection import save_point
 
 TEMPORARY_SUFFIX = ".tmp"
 """Temporary files are ``.<name>.<random>.tmp`` (plus ``suffix`` when one is asked for)."""

@@ -79,7 +79,7 @@ class PoseTrack:
         bones: (K,) int64 the corrected bones.
         rotations: (F, K, 3) axis-angle deltas added to the stored rotations of those bones.
         translation: (F, 3) deltas added to the stored root translation.
-        poses: digest of the stored poses they correct (:meth:`pghm.data.subject.SubjectArrays.poses_digest`).
+        poses: digest of the stored poses they correct (:meth:`pghm.subject.SubjectArrays.poses_digest`).
     """
 
     frames: Tensor

@@ -35,10 +35,10 @@ def export_posed_ply(
     FRONT_DISTANCE in front of the posed root). Returns the number of Gaussians written.
     """
     from pghm.body import load_body
-    from pghm.data.open_motion import open_motion
     from pghm.io.avatar import avatar_geometry, load_avatar
     from pghm.io.ply import write_ply
     from pghm.model.evaluator import CachedEvaluator
+    from pghm.motion.open_motion import open_motion
 
     avatar = load_avatar(avatar_path)
     avatar.check_identity(identity)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pghm._fault_injection import interrupt_point
 from pghm.errors import PghmError
 from pghm.io.outputs import check_output
 from pghm.render.driver import AvatarDriver, GaussianSet
@@ -23,7 +24,6 @@ from pghm.render.frame_cache import FrameCache, PackedFrame
 from pghm.render.frames import Backend, CPUFrames, frame_renderer
 from pghm.render.framing import DEFAULT_FOV_Y, frame_points, orbit_camera
 from pghm.render.sinks import open_sink, output_kind, to_uint8
-from pghm.test_hook import interrupt_point
 
 DEFAULT_SIZE = (640, 480)
 """(W, H) of ``pghm render`` images."""
@@ -145,8 +145,8 @@ def render_video(job: RenderJob, log: Callable[[str], None] = print) -> RenderSu
     Raises :class:`~pghm.errors.PghmError` (one line) for a bad avatar or motion file, a
     missing EGL (use ``backend="cpu"``) or bad options.
     """
-    from pghm.data.open_motion import open_motion
     from pghm.io.avatar import load_avatar
+    from pghm.motion.open_motion import open_motion
 
     width, height = job.size
     if width < 1 or height < 1 or width * height > MAX_RENDER_PIXELS:

@@ -17,23 +17,10 @@ from typing import TYPE_CHECKING
 import torch
 from torch import Tensor
 
+from pghm.splat.spec import COV_DILATION, FRUSTUM_CLAMP, NEAR_PLANE
+
 if TYPE_CHECKING:
     from pghm.splat._settings import SplatSettings
-
-NEAR_PLANE = 0.01
-"""Gaussians with camera-space depth t_z at or below this are dropped (world units)."""
-
-COV_DILATION = 0.3
-"""Added to the screen covariance's diagonal (px^2): every splat covers about a pixel (3DGS)."""
-
-ALPHA_MAX = 0.99
-"""alpha is clamped to this, so no single splat is fully opaque (3DGS)."""
-
-ALPHA_MIN = 1.0 / 255.0
-"""A (pixel, Gaussian) pair takes part only when its alpha reaches this (3DGS)."""
-
-FRUSTUM_CLAMP = 1.3
-"""t_x / t_z is clamped to this many half-fields of view inside the Jacobian J (3DGS)."""
 
 FOOTPRINT_MARGIN = 1e-4
 """Relative slack on a footprint's squared radius, so rounding never puts a pixel that the

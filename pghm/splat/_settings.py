@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from pghm.errors import PghmError
-from pghm.splat._projection import ALPHA_MAX, ALPHA_MIN
+from pghm.splat.spec import ALPHA_MAX, ALPHA_MIN
 
 
 @dataclass(frozen=True)

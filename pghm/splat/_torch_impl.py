@@ -22,8 +22,9 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from pghm.splat._projection import ALPHA_MAX, Footprints
+from pghm.splat._projection import Footprints
 from pghm.splat._settings import SplatSettings
+from pghm.splat.spec import ALPHA_MAX
 
 
 def _box_pixels(footprints: Footprints) -> tuple[Tensor, Tensor, Tensor]:

@@ -23,8 +23,9 @@ import torch
 from torch import Tensor
 
 from pghm.errors import PghmError
-from pghm.splat._projection import ALPHA_MAX, Footprints
+from pghm.splat._projection import Footprints
 from pghm.splat._settings import SplatSettings
+from pghm.splat.spec import ALPHA_MAX
 from pghm.uv.atlas import cache_dir
 
 SOURCE = Path(__file__).with_name("_rasterize.cpp")

@@ -21,10 +21,10 @@ from PIL import Image
 from torch import Tensor, nn
 
 from pghm.body.model import BodyModel
-from pghm.data.subject import Dataset, Frame, Subject, read_mask, stated_pose_noise
 from pghm.errors import DatasetError, PghmError
 from pghm.io.read_errors import IMAGE_READ_ERRORS
 from pghm.splat import Camera
+from pghm.subject import Dataset, Frame, Subject, read_mask, stated_pose_noise
 from pghm.train.person_crop import Crop, crop_size, mask_box, place
 from pghm.train.pose_smoothing import smooth_track
 

@@ -35,7 +35,7 @@ from pghm.io.atomic import atomic_write_bytes
 from pghm.io.avatar import Avatar, avatar_geometry, load_avatar, recorded_path
 from pghm.model.evaluator import CachedEvaluator
 from pghm.splat import render
-from pghm.train import test_poses
+from pghm.train import pose_refine
 from pghm.train.background import BLACK, WHITE, composite_render, composite_target
 from pghm.train.data import PoseCorrections, Sample, TrainingData
 from pghm.train.fit import POSE_LR, FitConfig
@@ -155,7 +155,7 @@ def evaluate(
             estimates (measures appearance apart from pose error).
         images: evaluate only these image indices of the split (None: all of them).
         background: (r, g, b) in [0, 1] behind the render and the target (white: the paper's).
-        refine_poses: steps of test-time pose refinement (:mod:`pghm.train.test_poses`) before
+        refine_poses: steps of test-time pose refinement (:mod:`pghm.train.pose_refine`) before
             rendering: the held-out frames' poses fitted to their images, the avatar frozen; 0: off.
         fit_poses: render with the avatar's pose track (:mod:`pghm.train.pose_track`): the
             corrections its fit learned on the training frames, interpolated onto the held-out
@@ -194,7 +194,7 @@ def evaluate(
     if refine_poses > 0:
         started = time.perf_counter()
         loss = FitConfig().stage2.loss  # the fit's own objective, so a frozen avatar sees what it was fitted with
-        corrections = test_poses.refine_poses(
+        corrections = pose_refine.refine_poses(
             avatar, data, refine_poses, loss, POSE_LR, images=indices, body_model_path=body_model_path
         )
         refine_seconds = time.perf_counter() - started

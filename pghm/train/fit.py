@@ -9,7 +9,7 @@ optimised together, with per-frame pose corrections when ``refine_poses``; the a
 them as its pose track (:mod:`pghm.train.pose_track`).
 Then, for poses stated noisier than the synthetic data's (a capture) whose frames stage 2 visits
 too rarely, the track is settled: every training frame's correction refined against its image
-with the avatar frozen and the network's maps held (:mod:`pghm.train.test_poses`; :func:`track_steps`).
+with the avatar frozen and the network's maps held (:mod:`pghm.train.pose_refine`; :func:`track_steps`).
 Both stages train on crops around the person (:mod:`pghm.train.person_crop`).
 """
 
@@ -44,9 +44,9 @@ from pghm.train.loop import (
 from pghm.train.losses import LossWeights
 from pghm.train.optim import LazyAdam
 from pghm.train.person_crop import CROP_MARGIN
+from pghm.train.pose_refine import refine_poses
 from pghm.train.pose_track import learned_track
-from pghm.train.prior import GeometryCache, checkpoint_path, config_record, lpips_for
-from pghm.train.test_poses import refine_poses
+from pghm.train.run_setup import GeometryCache, checkpoint_path, config_record, lpips_for
 
 log = logging.getLogger(__name__)
 
@@ -56,8 +56,7 @@ NETWORK_PARTS = tuple(part for part in COMPONENTS if part != "feature_decoder")
 FIT_POSE_PRIOR = 5e-4
 """Default weight of the Gaussian prior on the pose corrections when fitting a monocular video.
 Without it the corrections drift along the camera's axis and at the extremities, where the image
-constrains them little; at 500 steps it lifts the prior fit by 0.16 dB and scratch by 1.1 dB on
-average over three seeds, and 2e-3 is already too strong (docs/training.md)."""
+constrains them little (docs/lab/defaults.md, "Fit: the pose corrections' prior")."""
 
 POSE_LR = 1e-2
 """Learning rate of the pose corrections for poses as noisy as the synthetic data's (2 degrees);
@@ -65,10 +64,8 @@ POSE_LR = 1e-2
 
 TRACK_STEPS = 30
 """Steps of each training frame's pose refinement that settles the pose track (:func:`track_steps`).
-On a captured 100-frame video the held-out frames rendered with the track gain -0.14, +0.52, +0.82
-and +0.90 dB over stage 2's corrections at 10, 20, 30 and 50 steps: Adam's first steps move every
-coordinate by about the learning rate, whatever its gradient, and the poses settle only after
-(docs/training.md)."""
+Adam's first steps move every coordinate by about the learning rate, whatever its gradient, so
+the poses settle only after a few tens (docs/lab/defaults.md, "Fit: settling the pose track")."""
 
 TRACK_BATCH = 8
 """Frames the pose settling refines together: one evaluation of the identity's U-Net features and
@@ -76,14 +73,12 @@ one pass of Python overhead serve eight frames (the corrections of a frame depen
 
 TRACK_MIN_VISITS = 20
 """Stage 2 visits per training frame (its steps x images per step / training images) from which its
-corrections need no settling: at 10 visits (a 100-frame capture) settling lifts the training frames
-rendered with the track by 0.70 dB; at 26 (the 40-frame real video) it changes nothing (-0.15 dB)."""
+corrections need no settling (docs/lab/defaults.md, "Fit: settling the pose track")."""
 
 FIT_SILHOUETTE_WEIGHT = 4.0
 """Default weight of the silhouette term when fitting (the prior trains with 1.0,
-:data:`pghm.train.background.SILHOUETTE_WEIGHT`). On the shipped subject's novel poses, 4 against 1
-cuts the halo by 28% and gains 0.3 dB on white; 10 gives back most of it (docs/training.md,
-"The silhouette weight of the fit")."""
+:data:`pghm.train.background.SILHOUETTE_WEIGHT`): stronger cuts the halo around the body
+(docs/lab/defaults.md, "Fit: the silhouette weight")."""
 
 
 def _fit_stage(steps: int) -> LoopConfig:
@@ -99,13 +94,10 @@ def _fit_stage(steps: int) -> LoopConfig:
 class FitConfig:
     """Two-stage personalisation; defaults sized for a 2-core CPU (paper: 1k + 1k steps).
 
-    50 + 450 steps take 3.3 minutes here and reach 30.79 dB on the synthetic subject's novel
-    poses from the shipped prior (33.24 on black); with the previous prior, twice the steps
-    gained 0.3 dB (docs/results.md), so the default stops where the prior's return on time
-    falls off (docs/training.md). Both stages train on a random background colour per image
-    with the silhouette term (weight :data:`FIT_SILHOUETTE_WEIGHT`); trained on white only, the
-    previous shipped avatar scored 27.31 dB on black (docs/training.md, "Backgrounds and the
-    silhouette").
+    50 + 450 steps stop where the prior's return on time falls off. Both stages train on a
+    random background colour per image with the silhouette term (weight
+    :data:`FIT_SILHOUETTE_WEIGHT`), so the avatar holds on any background (docs/lab/defaults.md,
+    "Fit: steps and backgrounds").
     """
 
     stage1: LoopConfig = field(default_factory=lambda: _fit_stage(50))
@@ -121,8 +113,8 @@ class FitConfig:
     pose_smoothing: float = 0.0
     """Standard deviation in frames of a Gaussian filter applied over time to the video's
     estimated poses before fitting (0: use them as stored); see :mod:`pghm.train.pose_smoothing`.
-    Off by default: on the synthetic subject (6.7 frames/s) sigma = 1 removes 40% of the joint
-    error yet gains only 0.1 dB, as the per-frame corrections decide the result (docs/training.md)."""
+    Off by default: the per-frame corrections decide the result (docs/lab/defaults.md, "Fit:
+    steps and backgrounds")."""
     track_steps: int | None = None
     """Steps of pose refinement per training frame after stage 2, the avatar frozen, that settle
     the pose track (:data:`TRACK_STEPS`); None: :func:`track_steps` of the subject's stated noise
@@ -132,11 +124,11 @@ class FitConfig:
     (:meth:`PGHM.at_resolution`): (L / L_prior)^2 times as many Gaussians, finer detail, longer
     fits and slower viewing (docs/training.md, "Resolution, steps and image size")."""
     split: str = "train"
-    """The subject's split the avatar is fitted on (:data:`pghm.data.subject.ALL_SPLIT`: every
+    """The subject's split the avatar is fitted on (:data:`pghm.subject.ALL_SPLIT`: every
     image, as ``pghm capture --polish`` does to align the held-out frames' poses)."""
     hold_appearance: bool = True
     """Settle the pose track with the network's maps held at each batch's starting poses
-    (:class:`pghm.train.test_poses.HeldAppearance`): the skinning moves the Gaussians, no U-Net
+    (:class:`pghm.train.pose_refine.HeldAppearance`): the skinning moves the Gaussians, no U-Net
     runs per step."""
     crop_margin: int | None = CROP_MARGIN
     """Train on each image cut to the person's box with this margin in pixels, the loss kept the
@@ -153,11 +145,9 @@ def pose_learning_rate(rotation_sigma: float) -> float:
     Adam moves a correction by about its learning rate at each of a frame's few visits (about
     ten in 450 steps) whatever the gradient, and what pulls the coordinates an image barely
     sees back is the Gaussian prior on the corrections, whose pull falls as 1 / sigma^2. A
-    capture states 9.5 degrees, so the same rate lets its corrections wander with the
-    gradients' noise: on a captured subject 3e-3 fits the training frames better than 1e-2
-    (rendered with their own corrected poses, 29.5 against 27.5 dB; the held-out frames gain about
-    0.5 dB; docs/capture.md, d), while the synthetic subjects (2 degrees) keep the rate they were
-    tuned at, and so does the shipped avatar.
+    capture states 9.5 degrees, so the same rate would let its corrections wander with the
+    gradients' noise; the synthetic subjects (2 degrees) keep the rate they were tuned at
+    (docs/lab/defaults.md, "Fit: the pose corrections' learning rate").
     """
     return POSE_LR * min(1.0, ESTIMATOR_ROTATION_SIGMA / rotation_sigma)
 
@@ -261,7 +251,16 @@ def fit(
         state1 = restore(payload, objective, stage1_opt) if payload else LoopState()
         with profile.phase("stage 1"):
             state1 = run_stage(
-                objective, [latent], stage1_opt, data, geometries, config.stage1, ckpt, state1, {"stage": 1}, "fit 1/2"
+                objective=objective,
+                trainable=[latent],
+                optimizer=stage1_opt,
+                data=data,
+                geometry_of=geometries,
+                config=config.stage1,
+                checkpoint=ckpt,
+                state=state1,
+                extra={"stage": 1},
+                description="fit 1/2",
             )
 
     network = network_parameters(model)
@@ -278,7 +277,16 @@ def fit(
     trainable = [p for g in groups for p in g["params"]]
     with profile.phase("stage 2"):
         state2 = run_stage(
-            objective, trainable, stage2_opt, data, geometries, config.stage2, ckpt, state2, {"stage": 2}, "fit 2/2"
+            objective=objective,
+            trainable=trainable,
+            optimizer=stage2_opt,
+            data=data,
+            geometry_of=geometries,
+            config=config.stage2,
+            checkpoint=ckpt,
+            state=state2,
+            extra={"stage": 2},
+            description="fit 2/2",
         )
 
     avatar = Avatar(

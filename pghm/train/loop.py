@@ -366,6 +366,7 @@ def _all_finite(tensors) -> bool:
 
 
 def run_stage(
+    *,
     objective: AvatarObjective,
     trainable: list[nn.Parameter],
     optimizer: torch.optim.Optimizer,
@@ -377,7 +378,11 @@ def run_stage(
     extra: dict,
     description: str,
 ) -> LoopState:
-    """Run steps ``state.step`` .. ``config.steps`` - 1; returns the final state.
+    """Run steps ``state.step`` .. ``config.steps`` - 1 of one stage; returns the final state.
+
+    ``trainable`` are the parameters ``optimizer`` steps, ``geometry_of`` an identity's geometry,
+    ``extra`` what the checkpoint records beside the state (the stage, the kind), ``description``
+    the progress bar's label.
 
     Raises KeyboardInterrupt after saving a checkpoint when interrupted.
     """

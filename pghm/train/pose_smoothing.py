@@ -3,11 +3,9 @@
 A per-frame pose estimator's error is largely jitter: independent from frame to frame,
 while the true motion is smooth. Averaging each frame's pose with its neighbours'
 removes most of the jitter before any photometric refinement sees it; the pose
-corrections learned during fitting then start from a much better estimate. (On the
-synthetic monocular subject, 2 degrees of noise per axis-angle component of the 20
-estimated joints, filtered with ``sigma`` = 1 frame, the mean joint error falls from
-3.2 to 1.9 degrees and the root translation error from 16 to 11 mm; the fitted avatar gains
-only 0.1 dB there, see docs/training.md, so ``pghm fit`` leaves it off by default.)
+corrections learned during fitting then start from a much better estimate. ``pghm fit``
+leaves it off by default: those corrections decide the result (docs/lab/defaults.md, "Fit:
+steps and backgrounds").
 
 Filter: a Gaussian window w_k ~ exp(-k^2 / (2 sigma^2)), |k| <= ceil(3 sigma), over each
 run of consecutive frame numbers, truncated and renormalised at the ends of a run:

@@ -10,7 +10,7 @@ between two trained frames a < f < b takes their corrections interpolated in tim
     delta_f = (1 - w) delta_a + w delta_b,    w = (f - a) / (b - a),
 
 on top of its own stored pose (:meth:`~pghm.io.avatar.PoseTrack.at`; the avatar replaying its
-video, :func:`~pghm.data.open_motion.subject_motion`, does the same). A frame that was itself
+video, :func:`~pghm.motion.open_motion.subject_motion`, does the same). A frame that was itself
 trained on (another camera's view of a training instant) takes its own correction exactly. A
 frame not bracketed by trained frames at most :data:`~pghm.io.avatar.MAX_BRACKET_STEPS` frame
 steps apart (a novel pose after the video, or a long stretch of dropped frames) keeps its stored

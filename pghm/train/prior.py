@@ -8,17 +8,14 @@ estimates) with the loss on both renders I_s and I_d.
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import torch
 
-from pghm.body import load_body
 from pghm.errors import PghmError
 from pghm.io.avatar import Avatar, recorded_path, save_avatar
-from pghm.model import PGHM, ModelConfig, subject_geometry
-from pghm.model.geometry import SubjectGeometry
+from pghm.model import PGHM, ModelConfig
 from pghm.train import distributed
 from pghm.train.background import SILHOUETTE_WEIGHT, TRAINING_BACKGROUND
 from pghm.train.data import TrainingData
@@ -34,12 +31,8 @@ from pghm.train.loop import (
     run_stage,
 )
 from pghm.train.losses import LossWeights
-from pghm.train.lpips import load_lpips, lpips_status
 from pghm.train.optim import LazyAdam
-from pghm.uv.atlas import build_atlas
-
-if TYPE_CHECKING:
-    from pghm.train.fit import FitConfig
+from pghm.train.run_setup import GeometryCache, checkpoint_path, config_record, lpips_for
 
 log = logging.getLogger(__name__)
 
@@ -72,43 +65,6 @@ class PriorConfig:
     """The user's model file for bodies that are not embedded (SMPL-X)."""
     max_identities: int | None = None
     """Train on the first this-many subjects only (the identity-count ablation); None: all."""
-
-
-def checkpoint_path(out: Path) -> Path:
-    return out.with_name(out.name + ".ckpt")
-
-
-class GeometryCache:
-    """Each identity's :class:`SubjectGeometry`, built on first use."""
-
-    def __init__(self, data: TrainingData, config: ModelConfig, body_model_path: str | None) -> None:
-        self.body = load_body(data.body_name, body_model_path)
-        self.atlas = build_atlas(self.body, config.uv_resolution)
-        self.data = data
-        self._cache: dict[int, SubjectGeometry] = {}
-
-    def __call__(self, identity: int) -> SubjectGeometry:
-        if identity not in self._cache:
-            self._cache[identity] = subject_geometry(self.body, self.atlas, self.data.shape(identity))
-        return self._cache[identity]
-
-
-def config_record(config: PriorConfig | FitConfig) -> dict:
-    """A training config as metadata: its fields, the user's body model file by name only."""
-    record = asdict(config)
-    if config.body_model_path is not None:
-        record["body_model_path"] = recorded_path(config.body_model_path)
-    return record
-
-
-def lpips_for(enabled: bool):
-    """(the LPIPS network or None, a status line for the metadata, naming files without their directories)."""
-    if not enabled:
-        return None, "LPIPS off: disabled by configuration"
-    network = load_lpips()
-    if network is None:
-        log.warning("%s; the LPIPS loss term is dropped", lpips_status())
-    return network, lpips_status(directories=False)
 
 
 def initial_model(model: ModelConfig, num_identities: int, seed: int) -> PGHM:
@@ -154,7 +110,16 @@ def train_prior(
         state = restore(load_checkpoint(ckpt), objective, optimizer)
         log.info("resuming from %s at step %d", ckpt, state.step)
     state = run_stage(
-        objective, trainable, optimizer, data, geometries, config.loop, ckpt, state, {"kind": "prior"}, "prior"
+        objective=objective,
+        trainable=trainable,
+        optimizer=optimizer,
+        data=data,
+        geometry_of=geometries,
+        config=config.loop,
+        checkpoint=ckpt,
+        state=state,
+        extra={"kind": "prior"},
+        description="prior",
     )
     shapes = torch.stack([data.shape(i) for i in range(data.num_identities)])
     avatar = Avatar(

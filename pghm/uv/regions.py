@@ -5,7 +5,7 @@ per region; this module gives the (L, L) label map those factors are scattered w
 
 A texel's region is the body part of its dominant bone (the largest of its skinning
 weights, ``geometry.surface.weights``), through the synthetic-data engineer's
-:func:`pghm.data.synth.regions.bone_parts` (bone -> nearest canonical ancestor -> part).
+:func:`pghm.synth.regions.bone_parts` (bone -> nearest canonical ancestor -> part).
 Limb parts (arms, hands, legs, feet) are split into the body's left (canonical x >= 0, the
 side the body's left faces in the world frame of :mod:`pghm.body.pose`) and right copies.
 """
@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from pghm.data.synth.regions import PART_NAMES, bone_parts
+from pghm.synth.regions import PART_NAMES, bone_parts
 
 SIDED_PARTS = ("upper_arm", "lower_arm", "hand", "upper_leg", "lower_leg", "foot")
 """Parts that come as a left and a right region."""

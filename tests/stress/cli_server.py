@@ -25,9 +25,9 @@ import pghm.cli.main as cli  # noqa: F401 - imported before forking, the point o
 
 for module in ("data", "motion", "train", "export", "bench", "render", "synth"):
     __import__(f"pghm.cli.{module}")
-import pghm.data.subject  # noqa: E402,F401
 import pghm.io.avatar  # noqa: E402,F401
 import pghm.render  # noqa: E402,F401
+import pghm.subject  # noqa: E402,F401
 import pghm.train.fit  # noqa: E402,F401
 import pghm.train.prior  # noqa: E402,F401
 

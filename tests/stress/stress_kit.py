@@ -227,10 +227,10 @@ def output_versions(version: int) -> dict[str, tuple[callable, callable]]:
     from PIL import Image
 
     from pghm.body import load_body
-    from pghm.data.motion import Motion
     from pghm.io.avatar import load_avatar, save_avatar
     from pghm.io.ply import read_ply, write_ply
     from pghm.model import ModelConfig
+    from pghm.motion.motion import Motion
     from pghm.render import PngFileSink
     from viewer.demo import development_avatar
 
@@ -283,7 +283,7 @@ def spec_image(means, scales, colors, opacities, camera, background, stride: int
     """rgb (H, W, 3), alpha, depth of the spec in pghm/splat/__init__.py, float64, one pixel plane
     per Gaussian (fine for a few Gaussians at any size), and the pixels at the 1/255 threshold.
     With ``stride`` > 1, only every stride-th row and column (for huge images)."""
-    from pghm.splat._projection import ALPHA_MAX, ALPHA_MIN, COV_DILATION, FRUSTUM_CLAMP, NEAR_PLANE
+    from pghm.splat.spec import ALPHA_MAX, ALPHA_MIN, COV_DILATION, FRUSTUM_CLAMP, NEAR_PLANE
 
     f64 = torch.float64
     fx, fy, cx, cy = (float(getattr(camera, name)) for name in ("fx", "fy", "cx", "cy"))

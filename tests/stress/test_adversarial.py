@@ -1,4 +1,4 @@
-"""Every command against a hostile user, one mechanism per class of bad input (issue 25).
+"""Every command against a hostile user, one mechanism per class of bad input.
 
 The cases are generated from the parsers where they can be, so a command added tomorrow is
 tried by adding nothing but one row to :data:`BASE`:
@@ -9,7 +9,7 @@ tried by adding nothing but one row to :data:`BASE`:
 - outputs: every output option (``--out``, ``--report``, ``--strip``, ``--plot``) gets an
   unwritable place, an existing folder (or file, for folder outputs), a path under a file, the
   command's own input, a symlink to it, and ``/dev/full``;
-- file contents, sizes and memory, Ctrl-C, training on nothing: the classes of issue 25's table.
+- file contents, sizes and memory, Ctrl-C, training on nothing: one test each.
 
 Each case asserts the error contract: exit status 2 (130 for Ctrl-C), exactly one stderr line,
 no traceback, nothing left in the working folder, every input byte-identical afterwards.
@@ -33,11 +33,11 @@ from capture_videos import write_video
 from conftest import SMALL_MODEL, TINY_MODEL
 from stress_kit import ROOT, check, cli, one_error_line
 
+from pghm._fault_injection import TEST_INTERRUPT_VARIABLE
 from pghm.cli.main import build_parser, main
 from pghm.cli.options import Integer, Real, Size
-from pghm.data.subject import npz_bytes
 from pghm.io.avatar import save_avatar
-from pghm.test_hook import TEST_INTERRUPT_VARIABLE
+from pghm.subject import npz_bytes
 from viewer.demo import development_avatar
 
 BVH = (ROOT / "tests" / "data" / "two_bone.bvh").read_text()
@@ -62,7 +62,7 @@ TINY_RUN = {
 def world(tmp_path_factory, tiny_dataset):
     """Inputs every command can use: an avatar, a prior-shaped file, a motion, a BVH, a subject."""
     from pghm.body import load_body
-    from pghm.data.motion import Motion
+    from pghm.motion.motion import Motion
 
     root = tmp_path_factory.mktemp("adversarial_inputs")
     avatar = development_avatar(SMALL_MODEL, seed=3)

@@ -20,8 +20,8 @@ from conftest import SMALL_MODEL
 from PIL import Image
 from stress_kit import bad_avatar_files, check, cli, one_error_line, unsafe_load_runs_code
 
-from pghm.data.subject import npz_bytes
 from pghm.io.avatar import save_avatar
+from pghm.subject import npz_bytes
 from viewer.demo import development_avatar
 
 BVH = (Path(__file__).parent.parent / "data" / "two_bone.bvh").read_text()
@@ -35,7 +35,7 @@ def files(tmp_path_factory):
     save_avatar(good, development_avatar(SMALL_MODEL, seed=1))
     marker = directory / "code_ran"
     from pghm.body import load_body
-    from pghm.data.motion import Motion
+    from pghm.motion.motion import Motion
 
     body = load_body()
     Motion(np.zeros((2, body.num_bones, 3)), np.zeros((2, 3)), 30.0, "anny", list(body.bone_names)).save(
@@ -291,7 +291,7 @@ def test_broken_subject_through_check_train_prior_and_fit(kind, tiny_dataset, fi
 def _deflate_damaged_npz(path: Path) -> None:
     """A motion file whose first member's deflate stream is garbage (zlib.error when read)."""
     from pghm.body import load_body
-    from pghm.data.motion import Motion
+    from pghm.motion.motion import Motion
 
     body = load_body()
     Motion(np.zeros((2, body.num_bones, 3)), np.zeros((2, 3)), 30.0, "anny", list(body.bone_names)).save(path)
@@ -307,7 +307,7 @@ def _broken_header_npz(path: Path) -> None:
     import zipfile
 
     from pghm.body import load_body
-    from pghm.data.motion import Motion
+    from pghm.motion.motion import Motion
 
     body = load_body()
     Motion(np.zeros((2, body.num_bones, 3)), np.zeros((2, 3)), 30.0, "anny", list(body.bone_names)).save(path)
@@ -328,9 +328,9 @@ def test_fuzzer_findings_stay_fixed(files, tmp_path):
 
     import torch
 
-    from pghm.data.motion import Motion
     from pghm.errors import PghmError
     from pghm.io.avatar import load_avatar
+    from pghm.motion.motion import Motion
 
     good, _, _ = files
     payload = torch.load(good, weights_only=True)
@@ -398,9 +398,9 @@ def test_fuzzer_findings_stay_fixed(files, tmp_path):
 
 
 def test_fuzzer_findings_in_subject_folders(tiny_dataset, tmp_path):
-    from pghm.data.subject import Subject
-    from pghm.data.subject import check as check_subject
     from pghm.errors import DatasetError
+    from pghm.subject import Subject
+    from pghm.subject import check as check_subject
 
     def text_for_k(folder: Path) -> None:
         with np.load(folder / "cameras.npz", allow_pickle=False) as data:

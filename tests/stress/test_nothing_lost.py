@@ -15,7 +15,7 @@
    and ``--resume`` finishes the run with the parameters an uninterrupted run reaches.
 
 Every kill lands at a point the test chooses, on any machine at any load: the writer's
-fault-injection hook (``PGHM_TEST_PAUSE_SAVE``, :mod:`pghm.test_hook`) makes the child create
+fault-injection hook (``PGHM_TEST_PAUSE_SAVE``, :mod:`pghm._fault_injection`) makes the child create
 a marker file and sleep at the chosen point of the chosen save, and the test kills it once
 the marker exists. Nothing here waits for a moment it hopes to catch.
 """
@@ -118,15 +118,15 @@ class WriteSpy:
 
 def _writers(tmp: Path, tiny_dataset: Path) -> dict[str, tuple[callable, list[Path]]]:
     """Writer name -> (run it into ``tmp``, the files it must produce)."""
+    from benchmarks.splat_measure import write_json
     from pghm.body import load_body
-    from pghm.data.motion import Motion
-    from pghm.data.subject import Subject, write_dataset_meta, write_image, write_subject
-    from pghm.data.synth.sheet import contact_sheet
     from pghm.io.atomic import save_figure
     from pghm.io.avatar import save_avatar
     from pghm.io.ply import write_ply
+    from pghm.motion.motion import Motion
     from pghm.render import PngFileSink, PngSequenceSink
-    from pghm.splat.benchmark import write_json
+    from pghm.subject import Subject, write_dataset_meta, write_image, write_subject
+    from pghm.synth.sheet import contact_sheet
     from pghm.train.evaluate import evaluate
     from pghm.train.loop import LoopState, save_checkpoint
     from viewer.demo import development_avatar
@@ -286,7 +286,7 @@ IN_MEMORY = {"buffer", "member", "file"}
 ATOMIC_BY_CONSTRUCTION = {
     ("pghm/cli/motion.py", "motion.save"),  # Motion.save: atomic_write_bytes (checked above)
     ("pghm/render/sinks.py", "imageio_ffmpeg.write_frames"),  # into a PendingFile's temporary path
-    ("pghm/data/synth/video.py", "imageio_ffmpeg.write_frames"),  # into atomic_path's temporary path
+    ("pghm/synth/video.py", "imageio_ffmpeg.write_frames"),  # into atomic_path's temporary path
 }
 
 
@@ -336,7 +336,7 @@ def test_no_other_write_calls_in_pghm_and_the_viewer():
 # ------------------------------------------------------------- 2. kill -9 during a save
 
 SAVE_POINTS = ("created", "written", "renamed")
-"""The states of a save a kill can interrupt (:func:`pghm.test_hook.save_point`)."""
+"""The states of a save a kill can interrupt (:func:`pghm._fault_injection.save_point`)."""
 VERSION_AFTER_KILL = {"created": 0, "written": 0, "renamed": 1}
 """The version a file holds when its save of version 1 over version 0 is killed at each point."""
 STALE_AFTER_KILL = {"created": 1, "written": 1, "renamed": 0}
@@ -355,7 +355,7 @@ class Kill:
 def _kill_at(command: list[str], point: str, count: int, name: str, marker: Path, **popen) -> Kill:
     """Run ``command`` with the save hook set to pause at the ``count``-th ``point`` of a save to a
     file named ``name``, and SIGKILL it once it has paused there."""
-    from pghm.test_hook import PAUSE_MARKER_VARIABLE, PAUSE_VARIABLE
+    from pghm._fault_injection import PAUSE_MARKER_VARIABLE, PAUSE_VARIABLE
 
     marker.unlink(missing_ok=True)
     env = dict(os.environ, **{PAUSE_VARIABLE: f"{point}:{count}:{name}", PAUSE_MARKER_VARIABLE: str(marker)})

@@ -18,7 +18,7 @@ from stress_kit import check, check_property, spec_image
 
 from pghm.errors import PghmError
 from pghm.splat import Camera, render
-from pghm.splat._projection import ALPHA_MAX, ALPHA_MIN, NEAR_PLANE
+from pghm.splat.spec import ALPHA_MAX, ALPHA_MIN, NEAR_PLANE
 
 BACKENDS = ("native", "torch")
 BACKGROUND = (0.2, 0.3, 0.4)

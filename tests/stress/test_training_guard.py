@@ -26,7 +26,8 @@ from pghm.train.data import TrainingData
 from pghm.train.fit import FitConfig, fit
 from pghm.train.loop import LR_BACKOFF, LoopConfig, load_checkpoint
 from pghm.train.optim import LazyAdam
-from pghm.train.prior import PriorConfig, checkpoint_path, train_prior
+from pghm.train.prior import PriorConfig, train_prior
+from pghm.train.run_setup import checkpoint_path
 
 AREA = "training"
 GUARD_LINE = "non-finite loss, gradient or update; step skipped, learning rate x0.50"

@@ -32,19 +32,19 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from pghm._fault_injection import interrupt_point
 from pghm.body import BodyModel, load_body
-from pghm.data.subject import SubjectArrays, write_dataset_meta, write_image, write_subject
-from pghm.data.synth import cameras as rigs
-from pghm.data.synth.avatar import build_clothed_body, pose_clothed_body, shaped_body
-from pghm.data.synth.cloth import wrinkle_amplitudes
-from pghm.data.synth.config import SynthConfig
-from pghm.data.synth.identity import Identity, sample_identity
-from pghm.data.synth.poses import MOTION_KINDS, WALK_SPEED, add_pose_noise, motion_clip, place_on_path
-from pghm.data.synth.regions import Landmarks
-from pghm.data.synth.render import Lighting, MeshRenderer, RenderedView
 from pghm.errors import PghmError
 from pghm.io.outputs import staged_folder
-from pghm.test_hook import interrupt_point
+from pghm.subject import SubjectArrays, write_dataset_meta, write_image, write_subject
+from pghm.synth import cameras as rigs
+from pghm.synth.avatar import build_clothed_body, pose_clothed_body, shaped_body
+from pghm.synth.cloth import wrinkle_amplitudes
+from pghm.synth.config import SynthConfig
+from pghm.synth.identity import Identity, sample_identity
+from pghm.synth.poses import MOTION_KINDS, WALK_SPEED, add_pose_noise, motion_clip, place_on_path
+from pghm.synth.regions import Landmarks
+from pghm.synth.render import Lighting, MeshRenderer, RenderedView
 
 GENERATOR_VERSION = "1.1"
 """Bumped whenever the same config and seed would give different bytes."""

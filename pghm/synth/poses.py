@@ -6,7 +6,7 @@ trajectories (a walk cycle, arm raises, squats, a turn on the spot, a random dan
 pose diversity). Rotation axes come from the rest skeleton, so "bend the elbow" bends it
 forward whatever the rest pose (A-pose for Anny, T-pose for SMPL-X). Every clip keeps the
 lower ankle on the rest ankle's height (ground contact). :func:`motion_clip` prefers the
-project's procedural generator (:mod:`pghm.data.procedural`, with planted feet) for the
+project's procedural generator (:mod:`pghm.motion.procedural`, with planted feet) for the
 kinds it offers; the source of every clip is recorded in meta.json.
 
 Axes (world, y up, facing +z, left = +x): for a limb pointing along d, the rotation
@@ -289,7 +289,7 @@ def place_on_path(
 
 
 PROCEDURAL_NAMES = {"walk": "walk", "arm_raises": "arm_raises", "squat": "squat", "turn": "turn_in_place"}
-"""Our motion kinds -> :mod:`pghm.data.procedural` names; "dance" has no counterpart there."""
+"""Our motion kinds -> :mod:`pghm.motion.procedural` names; "dance" has no counterpart there."""
 
 MAX_START_OFFSET_S = 2.0
 """Procedural clips are deterministic; each subject starts at a random time up to this
@@ -307,7 +307,7 @@ def motion_clip(
     use_procedural: bool,
     turn_deg: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, str]:
-    """A clip from :mod:`pghm.data.procedural` when asked for and offered, else :func:`synth_motion`.
+    """A clip from :mod:`pghm.motion.procedural` when asked for and offered, else :func:`synth_motion`.
 
     Args:
         kind: one of :data:`MOTION_KINDS`.
@@ -317,7 +317,7 @@ def motion_clip(
         frames: F.
         fps: frames per second.
         rng: random start offset (procedural) or phases (built-in).
-        use_procedural: try :mod:`pghm.data.procedural` first.
+        use_procedural: try :mod:`pghm.motion.procedural` first.
         turn_deg: procedural walks only: total heading change over the clip (a walk on a
             circle); the root then travels along the curved path.
 
@@ -330,7 +330,7 @@ def motion_clip(
     procedural = None
     if use_procedural and name is not None:
         try:
-            procedural = importlib.import_module("pghm.data.procedural")
+            procedural = importlib.import_module("pghm.motion.procedural")
         except ImportError:
             procedural = None
     if procedural is not None:

@@ -3,7 +3,7 @@
 The clip's joints are named after a known rig (:data:`RIG_MAPS`, detected from the names);
 each maps to a canonical joint (:data:`~pghm.body.model.CANONICAL_JOINTS`) that the body
 maps to one of its bones. Writing G_k(t) for the clip joint's rest-relative world rotation
-(:meth:`~pghm.data.bvh.BvhClip.global_rotations`) and C for the rotation taking the clip's
+(:meth:`~pghm.motion.bvh.BvhClip.global_rotations`) and C for the rotation taking the clip's
 axes to the project's (y up, facing +z, left +x; :func:`clip_facing`), the body bone of
 canonical joint k gets the world rotation
 
@@ -41,10 +41,10 @@ import roma
 import torch
 
 from pghm.body import BodyModel
-from pghm.data.bvh import BvhClip, load_bvh
-from pghm.data.motion import MAX_FRAMES, Motion
-from pghm.data.procedural import AXIS_EPS, FootContact, matrices_to_rotvecs
 from pghm.errors import MotionFileError
+from pghm.motion.bvh import BvhClip, load_bvh
+from pghm.motion.motion import MAX_FRAMES, Motion
+from pghm.motion.procedural import AXIS_EPS, FootContact, matrices_to_rotvecs
 
 
 def _sided(common: dict[str, str], sided: dict[str, str]) -> dict[str, str]:

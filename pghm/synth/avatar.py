@@ -20,10 +20,10 @@ import numpy as np
 import torch
 
 from pghm.body import BodyModel, RestBody, lbs
-from pghm.data.synth import cloth
-from pghm.data.synth.identity import Identity
-from pghm.data.synth.paint import paint_albedo, texels_to_map
-from pghm.data.synth.regions import (
+from pghm.synth import cloth
+from pghm.synth.identity import Identity
+from pghm.synth.paint import paint_albedo, texels_to_map
+from pghm.synth.regions import (
     PART_NAMES,
     Landmarks,
     SurfacePoints,

@@ -10,9 +10,9 @@ import roma
 import torch
 from PIL import Image
 
-from pghm.data.subject import Dataset, Subject
 from pghm.errors import DatasetError
 from pghm.io.atomic import atomic_write_bytes
+from pghm.subject import Dataset, Subject
 
 GAP = 4
 """Pixels of white between subjects and between the grid and the strip."""

@@ -28,12 +28,12 @@ import numpy as np
 from tqdm import tqdm
 
 from pghm.body import load_body
-from pghm.data.subject import SubjectArrays
-from pghm.data.synth.config import PRESETS, SynthConfig
-from pghm.data.synth.generate import plan_subject, release_worker_gl, render_views
-from pghm.data.synth.render import RenderedView
 from pghm.errors import PghmError
 from pghm.io.atomic import atomic_path
+from pghm.subject import SubjectArrays
+from pghm.synth.config import PRESETS, SynthConfig
+from pghm.synth.generate import plan_subject, release_worker_gl, render_views
+from pghm.synth.render import RenderedView
 
 VIDEO_CRF = 23
 """libx264's constant rate factor (its default): visible blocking at edges and in flat

@@ -12,7 +12,6 @@ and the ``test`` extra (pytest, hypothesis).
 
 from __future__ import annotations
 
-import datetime
 import importlib.util
 import json
 import os
@@ -54,7 +53,8 @@ AREA_NOTES = {
         "**How the kill tests choose their moment.** A kill must land where the test says, on any "
         "machine at any load, not at a moment the test hopes to catch by polling (a fast idle "
         "machine finishes a small save between two polls). The atomic writer (`pghm/io/atomic.py`) "
-        "calls a fault-injection point (`pghm/test_hook.py`), off unless its environment variables are set: with "
+        "calls a fault-injection point (`pghm/_fault_injection.py`), off unless its environment "
+        "variables are set: with "
         "`PGHM_TEST_PAUSE_SAVE=POINT:N:NAME` and `PGHM_TEST_PAUSE_MARKER=PATH`, the N-th save to a file "
         "named NAME that reaches POINT creates PATH and sleeps. The points are the three states a save "
         "can be interrupted in: `created` (empty temporary file), `written` (complete temporary file, "
@@ -100,7 +100,7 @@ def format_report(rows: list[dict], fuzz: dict | None, suite_status: int, second
     lines = [
         "# Stress and bad-input report",
         "",
-        f"Written by `pghm bench stress` on {datetime.date.today().isoformat()} ({platform.machine()}, "
+        f"Written by `pghm bench stress` ({platform.machine()}, "
         f"Python {platform.python_version()}, load average {os.getloadavg()[0]:.1f}); do not edit: rerun it. "
         "Each row is one case of the stress suite (`tests/stress`), recorded by the test that ran it: "
         "the input tried, what the spec or the error contract (pghm/errors.py: one line, exit status 2) "

@@ -1,6 +1,6 @@
 """Measurements of the splatter: speed against a naive baseline, scaling, and runtime against error.
 
-Library code behind ``benchmarks/bench_splat.py`` and ``pghm bench splat``. The scene is
+Shared by ``benchmarks/bench_splat.py`` and ``pghm bench splat``. The scene is
 the default body: N points on the surface of the rest-pose Anny body (1.65 m, standing at
 the origin, y up, facing +z), isotropic scales 5-13 mm, seen from 3 m in front.
 
@@ -24,7 +24,8 @@ from torch import Tensor
 
 from pghm.io.atomic import atomic_write_bytes, save_figure
 from pghm.splat import Camera, SplatSettings, render
-from pghm.splat._projection import ALPHA_MAX, ALPHA_MIN, NEAR_PLANE, project, to_camera
+from pghm.splat._projection import project, to_camera
+from pghm.splat.spec import ALPHA_MAX, ALPHA_MIN, NEAR_PLANE
 
 SCALE_RANGE = (0.005, 0.013)
 """Isotropic standard deviations of the body scene, metres."""

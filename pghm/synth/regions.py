@@ -1,6 +1,6 @@
 """Where a canonical surface point lies on the body: part, limb coordinates, head frame.
 
-Every painter and cloth deformer in :mod:`pghm.data.synth` works on canonical (rest-pose)
+Every painter and cloth deformer in :mod:`pghm.synth` works on canonical (rest-pose)
 surface points, texel centres and mesh vertices alike, described by
 
     part       which body part carries the point: the canonical joint (see

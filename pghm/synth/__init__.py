@@ -1,7 +1,7 @@
 """Synthetic subjects: people painted and dressed procedurally, rendered as lit, textured
 triangle meshes (not Gaussians) from capture rings or a monocular camera.
 
-The generator writes the project's subject format (:mod:`pghm.data.subject`), the same one
+The generator writes the project's subject format (:mod:`pghm.subject`), the same one
 real captures are converted into; docs/data.md describes both.
 
     config = load_config("prior")            # or a SynthConfig(...)
@@ -12,12 +12,12 @@ Pieces, for tests and experiments: :func:`sample_identity` (an :class:`Identity`
 body model), :class:`MeshRenderer` (the ModernGL renderer, OpenCV camera convention).
 """
 
-from pghm.data.synth.avatar import ClothedBody, build_clothed_body, pose_clothed_body
-from pghm.data.synth.config import PRESETS, SynthConfig, load_config
-from pghm.data.synth.generate import GENERATOR_VERSION, GenerationReport, generate, plan_subject
-from pghm.data.synth.identity import Identity, sample_identity
-from pghm.data.synth.render import Lighting, MeshRenderer, RenderedView, project_points
-from pghm.data.synth.sheet import contact_sheet
+from pghm.synth.avatar import ClothedBody, build_clothed_body, pose_clothed_body
+from pghm.synth.config import PRESETS, SynthConfig, load_config
+from pghm.synth.generate import GENERATOR_VERSION, GenerationReport, generate, plan_subject
+from pghm.synth.identity import Identity, sample_identity
+from pghm.synth.render import Lighting, MeshRenderer, RenderedView, project_points
+from pghm.synth.sheet import contact_sheet
 
 __all__ = [
     "GENERATOR_VERSION",

@@ -49,8 +49,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pghm.data.motion import MAX_FPS, MAX_FRAMES
 from pghm.errors import MotionFileError
+from pghm.motion.motion import MAX_FPS, MAX_FRAMES
 
 POSITION_CHANNELS = ("Xposition", "Yposition", "Zposition")
 ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")

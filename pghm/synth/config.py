@@ -13,8 +13,8 @@ from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Literal, get_args
 
-from pghm.data.synth.poses import MOTION_KINDS
 from pghm.errors import PghmError
+from pghm.synth.poses import MOTION_KINDS
 
 Capture = Literal["multiview", "monocular"]
 
@@ -93,7 +93,7 @@ class SynthConfig:
 
     mono_motion: str = "walk"
     """Monocular: what the training frames show: "walk" (around the circle) or another of
-    :data:`~pghm.data.synth.poses.MOTION_KINDS` performed on the spot at the circle's centre
+    :data:`~pghm.synth.poses.MOTION_KINDS` performed on the spot at the circle's centre
     (capture-bench's check that the body fit's pose prior does not hurt other motions)."""
 
     pose_noise_deg: float = 2.0
@@ -116,8 +116,8 @@ class SynthConfig:
     """Cloth offsets of the mesh (loose sleeves, flares, skirts, hoods, hair volume)."""
 
     procedural_motions: bool = True
-    """Use :mod:`pghm.data.procedural` clips where that module offers the kind, else the
-    built-in ones of :mod:`pghm.data.synth.poses`."""
+    """Use :mod:`pghm.motion.procedural` clips where that module offers the kind, else the
+    built-in ones of :mod:`pghm.synth.poses`."""
 
     def validate(self) -> SynthConfig:
         """Raise :class:`PghmError` naming the first invalid field; return self."""

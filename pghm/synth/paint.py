@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pghm.data.synth.cloth import (
+from pghm.synth.cloth import (
     BOTTOM,
     HAIR,
     HEAD_DEPTH,
@@ -31,8 +31,8 @@ from pghm.data.synth.cloth import (
     hem_height,
     waist_height,
 )
-from pghm.data.synth.identity import Garment, Identity
-from pghm.data.synth.regions import EYE_BELOW_CROWN, Landmarks, SurfacePoints, chain_lengths
+from pghm.synth.identity import Garment, Identity
+from pghm.synth.regions import EYE_BELOW_CROWN, Landmarks, SurfacePoints, chain_lengths
 from pghm.uv.atlas import UVAtlas
 
 WEAVE_CELL = 0.0015

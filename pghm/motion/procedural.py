@@ -1,6 +1,6 @@
 """Procedural motions for any body, built from canonical joint names and the rest skeleton.
 
-Every clip is a :class:`~pghm.data.motion.Motion` in the shared pose representation
+Every clip is a :class:`~pghm.motion.motion.Motion` in the shared pose representation
 (:mod:`pghm.body.pose`): per-bone axis-angle rotations in *rest-aligned* axes. A local
 rotation R_j acts on the rest pose's world vectors before the parent's rotation does
 (W_j = W_parent(j) R_j), so every rotation axis here is a direction of the rest pose,
@@ -36,8 +36,8 @@ import roma
 import torch
 
 from pghm.body import BodyModel, BodyPose, RestBody, lbs
-from pghm.data.motion import MAX_FRAMES, Motion
 from pghm.errors import PghmError
+from pghm.motion.motion import MAX_FRAMES, Motion
 
 UP = np.array([0.0, 1.0, 0.0])
 FORWARD = np.array([0.0, 0.0, 1.0])

@@ -31,8 +31,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pghm.data.synth.identity import Identity
-from pghm.data.synth.regions import Landmarks, SurfacePoints, chain_coordinates, chain_lengths
+from pghm.synth.identity import Identity
+from pghm.synth.regions import Landmarks, SurfacePoints, chain_coordinates, chain_lengths
 
 SKIN, HAIR, TOP, BOTTOM, SHOES = range(5)
 """The materials :func:`material_labels` assigns."""

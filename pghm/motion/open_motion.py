@@ -2,7 +2,7 @@
 subject folder (its video's poses, such as a capture's: the avatar replays the video's motion).
 
 The CLIs (``--pose``, ``--motion``) and the viewer's "open motion" all accept the same
-forms, so one function turns each into a :class:`~pghm.data.motion.Motion` for a body.
+forms, so one function turns each into a :class:`~pghm.motion.motion.Motion` for a body.
 """
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ import numpy as np
 from torch import Tensor
 
 from pghm.body.model import BodyModel
-from pghm.data.motion import Motion
-from pghm.data.procedural import PROCEDURAL_MOTIONS, procedural_motion
-from pghm.data.retarget import import_bvh
 from pghm.errors import MotionFileError
 from pghm.io.avatar import MAX_BRACKET_STEPS
+from pghm.motion.motion import Motion
+from pghm.motion.procedural import PROCEDURAL_MOTIONS, procedural_motion
+from pghm.motion.retarget import import_bvh
 
 if TYPE_CHECKING:
     from pghm.io.avatar import PoseTrack
@@ -77,7 +77,7 @@ def subject_motion(directory: str | Path, track: PoseTrack | None = None) -> Mot
     replays its video with the poses it was fitted with. A track learned on other poses (its
     digest differs) is ignored.
     """
-    from pghm.data.subject import Subject
+    from pghm.subject import Subject
 
     subject = Subject.open(directory)
     arrays = subject.arrays

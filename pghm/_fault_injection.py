@@ -1,5 +1,8 @@
-"""Test hooks (fault injection), off unless their environment variables are set: interruption
-and kill tests choose the moment they interrupt a command instead of racing the clock.
+"""A test hook: lets tests inject faults (a Ctrl-C, a kill mid-save) into running commands.
+
+Private: nothing outside the test suite sets its environment variables, and with them unset
+every function here returns at once. Interruption and kill tests use it to choose the moment
+they interrupt a command instead of racing the clock.
 
 **Ctrl-C at a named point.**
 When the environment variable ``PGHM_TEST_INTERRUPT_AT`` equals a point's name, reaching
@@ -8,7 +11,7 @@ KeyboardInterrupt is raised right there. Unset (always, outside tests) it does n
 
 Points: ``startup`` (pghm.cli.main, before the subcommand modules and torch are imported),
 ``render-frame`` (pghm.render.job, after the first frame is written), ``synth-subjects``
-(pghm.data.synth.generate, after the images are rendered, before the subjects' files are
+(pghm.synth.generate, after the images are rendered, before the subjects' files are
 written). tests/stress/test_adversarial.py uses each.
 
 **A pause inside a save, for kill -9 tests.** With ``PGHM_TEST_PAUSE_SAVE="POINT:N:NAME"`` and

@@ -1,0 +1,157 @@
+"""A real person's avatar, end to end: ``pghm capture`` -> ``pghm fit`` -> ``pghm eval`` on videos.
+
+For each video (real ones given by path, and synthetic ones rendered like a person turning round
+in front of a plain wall, :func:`turning_video`), in child processes so that each stage's wall
+time and peak memory are its own:
+
+1. ``pghm capture VIDEO --out SUBJECT`` (defaults): frames kept, seconds, peak GB;
+2. ``pghm fit SUBJECT --prior PRIOR --out AVATAR`` (defaults, plus ``--fit-option`` ones): seconds
+   and peak GB on the machine as it is, and with ``--busy`` again with a CPU-bound busy loop beside
+   it (as on a laptop running something else);
+3. ``pghm eval AVATAR SUBJECT --split test`` with the stored poses, ``--fit-poses`` and
+   ``--refine-poses 30``: PSNR, SSIM, silhouette IoU and halo on the held-out frames, and the
+   strip of the refined evaluation, copied to ``docs/bench_real_<video>.png``.
+
+    python benchmarks/bench_real.py [VIDEO ...] [--turning 1] [--frames 100] [--busy]
+                                    [--prior assets/prior.pt] [--fit-option=--stage2-steps=200 ...]
+                                    [--keep DIR] [--results bench_real]
+
+Prints one row per video and writes benchmarks/results/<results>.json. The load average before each
+timed stage is recorded: a time measured while other jobs share the cores is slower.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from common import DOCS, ROOT, load_average, print_table, timed_child, write_json
+
+PGHM = [sys.executable, "-m", "pghm.cli.main"]
+"""The pghm command, run in a child process of this interpreter."""
+REFINE_STEPS = 30
+"""Test-time pose refinement steps of the refined evaluation (as evaluations of monocular avatars do)."""
+EVALUATIONS = {"stored": [], "fit": ["--fit-poses"], "refined": ["--refine-poses", str(REFINE_STEPS)]}
+"""Name -> ``pghm eval`` options: the held-out frames' poses as captured, as the fit learned them, refined."""
+WALL = ((196, 190, 178), (150, 140, 128))
+"""A plain wall over a floor (top and bottom colours of the synthetic videos' background)."""
+BUSY_LOOP = [sys.executable, "-c", "while True: pass"]
+
+
+def turning_video(out: Path, frames: int, seed: int) -> Path:
+    """A synthetic person turning round on the spot in front of a plain wall, 512 x 512 H.264."""
+    from pghm.synth.video import graded_background, render_walk_video, walk_config
+
+    config = walk_config(frames, width=512, height=512, motion="turn")
+    render_walk_video(config, seed, out, graded_background(*WALL, config.width, config.height))
+    return out
+
+
+def run(command: list[str], log: Path, busy: bool = False) -> dict:
+    """Run ``command`` (a pghm child) to completion: its seconds, peak GB and the load before it."""
+    load = load_average()
+    loop = subprocess.Popen(BUSY_LOOP) if busy else None
+    try:
+        seconds, peak_gb = timed_child(command, log)
+    finally:
+        if loop is not None:
+            loop.kill()
+            loop.wait()
+    return {"seconds": round(seconds, 1), "peak_gb": round(peak_gb, 2), "load_before": round(load, 2)}
+
+
+def frames_kept(subject: Path) -> int:
+    counts = json.loads((subject / "meta.json").read_text())["counts"]
+    return counts["person_found"] - counts["dropped"]
+
+
+def evaluate(avatar: Path, subject: Path, work: Path, name: str) -> dict:
+    """Each of :data:`EVALUATIONS` on the test split: its mean figures (and the refined strip into docs/)."""
+    figures = {}
+    for kind, options in EVALUATIONS.items():
+        report, strip = work / f"eval_{kind}.json", work / f"eval_{kind}.png"
+        command = [*PGHM, "eval", str(avatar), str(subject), "--split", "test", "--report", str(report)]
+        run([*command, "--strip", str(strip), *options], work / f"eval_{kind}.log")
+        mean = json.loads(report.read_text())["mean"]
+        figures[kind] = {key: round(float(mean[key]), 4) for key in ("psnr", "ssim", "iou", "halo_pixels")}
+        if kind == "refined":
+            shutil.copyfile(strip, DOCS / f"bench_real_{name}.png")
+    return figures
+
+
+def bench_video(video: Path, name: str, work: Path, args: argparse.Namespace) -> dict:
+    work.mkdir(parents=True, exist_ok=True)
+    subject, avatar = work / "subject", work / "avatar.pt"
+    row = {"video": name}
+    if not subject.is_dir():
+        row["capture"] = run([*PGHM, "capture", str(video), "--out", str(subject)], work / "capture.log")
+    row["frames"] = frames_kept(subject)
+
+    def fit(out: Path) -> list[str]:
+        return [*PGHM, "fit", str(subject), "--prior", str(args.prior), "--out", str(out), *args.fit_option]
+
+    row["fit"] = run(fit(avatar), work / "fit.log")
+    if args.busy:
+        row["fit_busy"] = run(fit(work / "avatar_busy.pt"), work / "fit_busy.log", busy=True)
+    row["eval"] = evaluate(avatar, subject, work, name)
+    return row
+
+
+def table_rows(rows: list[dict]) -> list[dict]:
+    out = []
+    for row in rows:
+        flat = {"video": row["video"], "frames": row["frames"]}
+        if "capture" in row:
+            flat["capture_s"] = row["capture"]["seconds"]
+        flat["fit_s"] = row["fit"]["seconds"]
+        if "fit_busy" in row:
+            flat["fit_busy_s"] = row["fit_busy"]["seconds"]
+        flat["peak_gb"] = row["fit"]["peak_gb"]
+        for kind, figures in row["eval"].items():
+            flat[f"psnr_{kind}"] = figures["psnr"]
+            flat[f"ssim_{kind}"] = figures["ssim"]
+        flat["iou"] = row["eval"]["refined"]["iou"]
+        flat["halo"] = row["eval"]["refined"]["halo_pixels"]
+        out.append(flat)
+    return out
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("videos", nargs="*", type=Path, help="real videos of one person (default: the shared one)")
+    parser.add_argument("--turning", type=int, default=1, help="synthetic turning videos to add (default %(default)s)")
+    parser.add_argument("--frames", type=int, default=100, help="frames of each synthetic video (default %(default)s)")
+    parser.add_argument("--busy", action="store_true", help="fit each video again with a busy loop beside it")
+    parser.add_argument("--prior", type=Path, default=ROOT / "assets" / "prior.pt")
+    parser.add_argument("--fit-option", action="append", default=[], help="an option passed on to pghm fit")
+    parser.add_argument("--keep", type=Path, help="keep videos, subjects and avatars here (and reuse captured subjects)")
+    parser.add_argument("--results", default="bench_real", help="name of the JSON under benchmarks/results/")
+    args = parser.parse_args()
+    shared = ROOT.parent / "shared" / "data" / "video"
+    videos = args.videos or sorted(shared.glob("*.mp4"))
+    work = args.keep or Path(tempfile.mkdtemp(prefix="bench_real_"))
+    rows = []
+    try:
+        for video in videos:
+            rows.append(bench_video(video.resolve(), video.stem, work / video.stem, args))
+        for seed in range(args.turning):
+            name = f"turning_{seed}"
+            video = work / f"{name}.mp4"
+            if not video.is_file():
+                turning_video(video, args.frames, seed)
+            rows.append(bench_video(video, name, work / name, args))
+    finally:
+        if args.keep is None:
+            shutil.rmtree(work, ignore_errors=True)
+    print_table(table_rows(rows))
+    write_json(args.results, {"fit_options": args.fit_option, "videos": rows})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,1 +1,0 @@
-"""Data: motions (BVH import, procedural clips), synthetic subjects, the on-disk subject format."""

@@ -1,0 +1,62 @@
+"""What both training commands (``pghm train-prior``, ``pghm fit``) set up besides the model:
+each identity's geometry, the LPIPS network, the checkpoint's path and the config's record."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict
+from pathlib import Path
+from typing import Protocol
+
+from pghm.body import load_body
+from pghm.io.avatar import recorded_path
+from pghm.model import ModelConfig, subject_geometry
+from pghm.model.geometry import SubjectGeometry
+from pghm.train.data import TrainingData
+from pghm.train.lpips import load_lpips, lpips_status
+from pghm.uv.atlas import build_atlas
+
+log = logging.getLogger(__name__)
+
+
+class TrainingConfig(Protocol):
+    """A training command's config dataclass (``PriorConfig``, ``FitConfig``), as far as it is read here."""
+
+    body_model_path: str | None
+
+
+def checkpoint_path(out: Path) -> Path:
+    return out.with_name(out.name + ".ckpt")
+
+
+class GeometryCache:
+    """Each identity's :class:`SubjectGeometry`, built on first use."""
+
+    def __init__(self, data: TrainingData, config: ModelConfig, body_model_path: str | None) -> None:
+        self.body = load_body(data.body_name, body_model_path)
+        self.atlas = build_atlas(self.body, config.uv_resolution)
+        self.data = data
+        self._cache: dict[int, SubjectGeometry] = {}
+
+    def __call__(self, identity: int) -> SubjectGeometry:
+        if identity not in self._cache:
+            self._cache[identity] = subject_geometry(self.body, self.atlas, self.data.shape(identity))
+        return self._cache[identity]
+
+
+def config_record(config: TrainingConfig) -> dict:
+    """A training config as metadata: its fields, the user's body model file by name only."""
+    record = asdict(config)
+    if config.body_model_path is not None:
+        record["body_model_path"] = recorded_path(config.body_model_path)
+    return record
+
+
+def lpips_for(enabled: bool):
+    """(the LPIPS network or None, a status line for the metadata, naming files without their directories)."""
+    if not enabled:
+        return None, "LPIPS off: disabled by configuration"
+    network = load_lpips()
+    if network is None:
+        log.warning("%s; the LPIPS loss term is dropped", lpips_status())
+    return network, lpips_status(directories=False)
