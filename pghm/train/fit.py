@@ -9,7 +9,7 @@ optimised together, with per-frame pose corrections when ``refine_poses``; the a
 them as its pose track (:mod:`pghm.train.pose_track`).
 Then, for poses stated noisier than the synthetic data's (a capture) whose frames stage 2 visits
 too rarely, the track is settled: every training frame's correction refined against its image
-with the avatar frozen and the network's maps held (:mod:`pghm.train.pose_refine`; :func:`track_steps`).
+with the avatar frozen (:mod:`pghm.train.pose_refine`; :func:`track_steps`).
 Both stages train on crops around the person (:mod:`pghm.train.person_crop`).
 """
 
@@ -126,10 +126,11 @@ class FitConfig:
     split: str = "train"
     """The subject's split the avatar is fitted on (:data:`pghm.subject.ALL_SPLIT`: every
     image, as ``pghm capture --polish`` does to align the held-out frames' poses)."""
-    hold_appearance: bool = True
+    hold_appearance: bool = False
     """Settle the pose track with the network's maps held at each batch's starting poses
-    (:class:`pghm.train.pose_refine.HeldAppearance`): the skinning moves the Gaussians, no U-Net
-    runs per step."""
+    (:class:`pghm.train.pose_refine.HeldAppearance`): the skinning moves the Gaussians and no U-Net
+    runs per step, a third cheaper; off, as it aligns held-out frames 0.1 dB worse (docs/training.md,
+    "Speed")."""
     crop_margin: int | None = CROP_MARGIN
     """Train on each image cut to the person's box with this margin in pixels, the loss kept the
     full frame's (:mod:`pghm.train.person_crop`); None: whole frames."""
