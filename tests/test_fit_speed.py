@@ -5,6 +5,7 @@ and the pose settling's held appearance is the network's at the starting pose.""
 from __future__ import annotations
 
 import math
+import os
 import time
 
 import numpy as np
@@ -221,3 +222,22 @@ def test_the_losses_ssim_is_pytorch_msssims_with_the_targets_statistics_shared()
         (expected,) = torch.autograd.grad(reference.sum(), render)
         (found,) = torch.autograd.grad(value.sum(), render)
         torch.testing.assert_close(found, expected, rtol=1e-4, atol=1e-9)
+
+
+def test_the_wait_policy_is_passive_unless_the_user_chose_one(monkeypatch):
+    from pghm.cli.threads import WAIT_POLICY, set_wait_policy
+
+    monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
+    set_wait_policy()
+    assert os.environ["OMP_WAIT_POLICY"] == WAIT_POLICY == "PASSIVE"
+    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    set_wait_policy()
+    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
+
+
+def test_a_users_thread_count_wins(monkeypatch):
+    from pghm.cli.threads import set_threads
+
+    before = torch.get_num_threads()
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    assert set_threads() == before == torch.get_num_threads()
