@@ -129,8 +129,7 @@ class FitConfig:
     hold_appearance: bool = False
     """Settle the pose track with the network's maps held at each batch's starting poses
     (:class:`pghm.train.pose_refine.HeldAppearance`): the skinning moves the Gaussians and no U-Net
-    runs per step, a third cheaper; off, as it aligns held-out frames 0.1 dB worse (docs/training.md,
-    "Speed")."""
+    runs per step; off, as it aligns worse (docs/training.md, "Speed")."""
     crop_margin: int | None = CROP_MARGIN
     """Train on each image cut to the person's box with this margin in pixels, the loss kept the
     full frame's (:mod:`pghm.train.person_crop`); None: whole frames."""
