@@ -45,7 +45,15 @@ AREAS = (
     "adversarial: sizes and memory",
     "adversarial: training on nothing",
     "adversarial: Ctrl-C",
+    "adversarial: SIGTERM",
     "adversarial: misc",
+    "adversarial: leak classes",
+    "adversarial: synth",
+    "adversarial: train-prior",
+    "adversarial: bench",
+    "adversarial: data sheet",
+    "adversarial: motion make",
+    "adversarial: concurrent writers",
 )
 """Report sections, in this order (an area not listed here follows them)."""
 AREA_NOTES = {
@@ -62,6 +70,28 @@ AREA_NOTES = {
         "point it wants, waits for the marker and sends SIGKILL, so each kill lands in that state on "
         "every run; the rows below name the save and the point, and the checkpoint step the kill "
         "implies is asserted exactly."
+    ),
+    "adversarial: leak classes": (
+        "**One mechanism per class.** Physical quantities are checked against what the physics allows "
+        "where they are read: `--focal` against a field of view of 1 to 179 degrees on the frames' size, "
+        "body shapes against their body's domain (Anny's phenotypes in [0, 1]) in avatar files and "
+        "subjects alike, synth configs field by field; nothing is clamped. No output lies inside an input "
+        "folder or holds an input (`pghm.io.outputs.check_output`, for every command). Unreadable inputs are "
+        "refused, never left out: a frame folder, or a subject's images, with a broken link, a link loop or "
+        "a corrupt image stop the run before any output exists, every such file named in one line, as a "
+        "corrupt video does; only pixels damaged behind a valid header, which a training run finds when it "
+        "decodes them, are left out with a warning naming the frame (`pghm data check` decodes every image "
+        "and lists them beforehand). A subject "
+        "has one validator (`pghm.subject.check_subject`): `pghm data check` lists what it finds, "
+        "and every reader (fit, eval, train-prior, data sheet, capture --polish) opens a subject through it "
+        "and stops at its first line; each consumer checks the subject's body against the avatar's. "
+        "Cheap refusals come first: an output's name, size and checkpoint are asked before any model loads."
+    ),
+    "adversarial: SIGTERM": (
+        "SIGTERM (a shutdown, a job scheduler) is raised at the CLI entry (`pghm`, `pghm-view`) as a "
+        "`Terminated`, a kind of KeyboardInterrupt, so it unwinds exactly as Ctrl-C does: staged outputs "
+        "removed, a training run's checkpoint saved for `--resume`; then one line `pghm: terminated` and "
+        "exit status 143 (128 + 15). A second SIGTERM during that clean-up is ignored."
     ),
 }
 """A paragraph printed under a section's heading, before its table."""

@@ -4,15 +4,17 @@ Private: nothing outside the test suite sets its environment variables, and with
 every function here returns at once. Interruption and kill tests use it to choose the moment
 they interrupt a command instead of racing the clock.
 
-**Ctrl-C at a named point.**
+**Ctrl-C or SIGTERM at a named point.**
 When the environment variable ``PGHM_TEST_INTERRUPT_AT`` equals a point's name, reaching
 :func:`interrupt_point` sends this process SIGINT (what Ctrl-C in a terminal sends), so the
-KeyboardInterrupt is raised right there. Unset (always, outside tests) it does nothing.
+KeyboardInterrupt is raised right there; ``NAME:SIGTERM`` sends SIGTERM instead (what a
+shutdown or a job scheduler sends). Unset (always, outside tests) it does nothing.
 
 Points: ``startup`` (pghm.cli.main, before the subcommand modules and torch are imported),
 ``render-frame`` (pghm.render.job, after the first frame is written), ``synth-subjects``
 (pghm.synth.generate, after the images are rendered, before the subjects' files are
-written). tests/stress/test_adversarial.py uses each.
+written), ``train-step`` (pghm.train.loop, after each step and its checkpoint).
+tests/stress/test_adversarial.py uses each.
 
 **A pause inside a save, for kill -9 tests.** With ``PGHM_TEST_PAUSE_SAVE="POINT:N:NAME"`` and
 ``PGHM_TEST_PAUSE_MARKER=PATH``, the N-th time (1-based, per process) an atomic save
@@ -38,9 +40,11 @@ TEST_INTERRUPT_VARIABLE = "PGHM_TEST_INTERRUPT_AT"
 
 
 def interrupt_point(name: str) -> None:
-    """SIGINT to this process when ``$PGHM_TEST_INTERRUPT_AT`` is ``name`` (a test hook; see the module doc)."""
-    if os.environ.get(TEST_INTERRUPT_VARIABLE) == name:
-        os.kill(os.getpid(), signal.SIGINT)
+    """SIGINT (or the signal named after a colon) to this process when ``$PGHM_TEST_INTERRUPT_AT``
+    names ``name`` (a test hook; see the module doc)."""
+    point, _, signal_name = os.environ.get(TEST_INTERRUPT_VARIABLE, "").partition(":")
+    if point == name:
+        os.kill(os.getpid(), signal.Signals[signal_name or "SIGINT"])
 
 
 PAUSE_VARIABLE = "PGHM_TEST_PAUSE_SAVE"

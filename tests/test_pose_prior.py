@@ -12,6 +12,7 @@ import torch
 from conftest import TINY_MODEL
 
 from pghm.cli.main import main
+from pghm.device import resolve_device
 from pghm.errors import DatasetError, PghmError
 from pghm.model import PGHM, ModelConfig
 from pghm.train.data import ESTIMATOR_ROTATION_SIGMA, ESTIMATOR_TRANSLATION_SIGMA, PoseCorrections, TrainingData
@@ -85,14 +86,15 @@ def test_commands_without_options_run_the_library_defaults(monkeypatch, command,
     class Recorded(Exception):
         pass
 
-    def record(*positional, resume):
-        seen["config"] = positional[-1]
+    def record(*positional, resume, device):
+        seen["config"], seen["device"] = positional[-1], device
         raise Recorded
 
     monkeypatch.setattr(importlib.import_module(module), call, record)
     with pytest.raises(Recorded):
         main(command)
     assert seen["config"] == expected
+    assert seen["device"] == resolve_device("auto")
     stages = [expected.stage1, expected.stage2] if isinstance(expected, FitConfig) else [expected.loop]
     assert all(stage.loss.pose_prior == weight for stage in stages)
 

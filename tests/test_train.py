@@ -120,6 +120,27 @@ def test_fit_at_twice_the_priors_resolution_makes_an_avatar_at_that_resolution(t
     assert load_avatar(prior_file).model.config.uv_resolution == finer // 2  # the prior file is unchanged
 
 
+def test_fit_detail_stage_trains_only_the_layer_and_saves_it(tiny_dataset, prior_file, tmp_path):
+    from pghm.io.avatar import avatar_geometry, load_avatar
+
+    stages = [LoopConfig(steps=n, images_per_shard=2, checkpoint_every=0) for n in (1, 1, 3)]
+    config = FitConfig(stage1=stages[0], stage2=stages[1], lpips=False)
+    plain = fit(tiny_dataset / "subject_001", load_avatar(prior_file), tmp_path / "plain.pt", config)
+    config.detail = stages[2]
+    fit(tiny_dataset / "subject_001", load_avatar(prior_file), tmp_path / "detail.pt", config)
+    loaded = load_avatar(tmp_path / "detail.pt")
+    assert plain.model.detail is None and loaded.model.config.detail
+    assert loaded.metadata["steps"]["detail"] == 3 and not (tmp_path / "detail.pt.ckpt").exists()
+    assert loaded.model.detail.maps.abs().sum() > 0
+    # The stages before it are the same run: the latent and the network are those of the plain fit.
+    assert torch.equal(loaded.latent, plain.latent)
+    weights = loaded.model.state_dict()
+    assert all(torch.equal(weights[name], value) for name, value in plain.model.state_dict().items())
+    # Texels no Gaussian of the 2L atlas uses keep their zero.
+    unused = ~avatar_geometry(loaded).detail.atlas.mask
+    assert loaded.model.detail.maps[0][:, unused].abs().max() == 0
+
+
 def test_resume_gives_the_same_parameters(tiny_dataset, tmp_path, monkeypatch):
     from pghm.train.data import TrainingData
 

@@ -63,6 +63,30 @@ class RestBody:
     joints: Tensor
 
 
+SHAPE_DOMAINS: dict[str, tuple[float, float]] = {"anny": (0.0, 1.0)}
+"""The closed range of each body's shape parameters, by body name: Anny's phenotypes are
+fractions in [0, 1] (beyond them it clamps, so 1e6 would pass as the tallest body). A body not
+listed (SMPL-X: its betas are standard deviations) bounds them only by finiteness."""
+
+
+def shape_problem(body_name: str, shape: object) -> str | None:
+    """Why (S,) ``shape`` cannot be ``body_name``'s shape parameters (a value not finite or outside
+    :data:`SHAPE_DOMAINS`), or None; shared by the body models and the file loaders."""
+    values = torch.as_tensor(shape, dtype=torch.float64).reshape(-1)
+    if not torch.isfinite(values).all():
+        return "is not finite"
+    if body_name in SHAPE_DOMAINS and values.numel():
+        low, high = SHAPE_DOMAINS[body_name]
+        outside = (values < low) | (values > high)
+        if outside.any():
+            first = int(outside.nonzero()[0])
+            return (
+                f"holds {values[first].item():g} at {first}; the '{body_name}' body's shape parameters "
+                f"lie in [{low:g}, {high:g}]"
+            )
+    return None
+
+
 class BodyModel(nn.Module):
     """Common interface of the body backends.
 
@@ -114,11 +138,14 @@ class BodyModel(nn.Module):
         if shape is None:
             return self.default_shape()
         shape = torch.as_tensor(shape, dtype=torch.float32)
-        if shape.shape != (len(self.shape_names),) or not torch.isfinite(shape).all():
+        if shape.shape != (len(self.shape_names),):
             raise PoseError(
-                f"body shape must be {len(self.shape_names)} finite values "
+                f"body shape must be {len(self.shape_names)} values "
                 f"({', '.join(self.shape_names)}), got shape {tuple(shape.shape)}"
             )
+        problem = shape_problem(self.name, shape)
+        if problem is not None:
+            raise PoseError(f"body shape {problem}")
         return shape
 
     def rest(self, shape: Tensor | None = None, dtype: torch.dtype = torch.float32) -> RestBody:

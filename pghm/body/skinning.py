@@ -27,14 +27,14 @@ from torch import Tensor
 from pghm.body.pose import BodyPose
 
 
-def kinematic_levels(parents: list[int]) -> list[Tensor]:
+def kinematic_levels(parents: list[int], device: torch.device | None = None) -> list[Tensor]:
     """Bones grouped by depth in the tree, root level first.
 
     Every bone's parent lies in an earlier level, so each level's global transforms are
     one batched product with the previous levels' results.
 
     Returns:
-        levels: list of (J_level,) long tensors of bone indices.
+        levels: list of (J_level,) long tensors of bone indices, on ``device`` (None: the CPU).
     """
     depth = [0] * len(parents)
     for bone, parent in enumerate(parents):
@@ -44,7 +44,7 @@ def kinematic_levels(parents: list[int]) -> list[Tensor]:
     levels: list[list[int]] = [[] for _ in range(max(depth) + 1)]
     for bone, d in enumerate(depth):
         levels[d].append(bone)
-    return [torch.tensor(level, dtype=torch.long) for level in levels]
+    return [torch.tensor(level, dtype=torch.long, device=device) for level in levels]
 
 
 def forward_kinematics(
@@ -66,7 +66,7 @@ def forward_kinematics(
     Returns:
         transforms: (B, J, 4, 4), A_j = A_parent(j) L_j.
     """
-    levels = kinematic_levels(parents) if levels is None else levels
+    levels = kinematic_levels(parents, rotmats.device) if levels is None else levels
     batch, num_bones = rotmats.shape[:2]
     joints = joints.expand(batch, num_bones, 3)
     # l[b, j] = joints[b, j] - R[b, j] joints[b, j], the translation of L_j.
@@ -74,7 +74,7 @@ def forward_kinematics(
     local_trans = local_trans + torch.nn.functional.pad(translation[:, None], (0, 0, 0, num_bones - 1))
 
     # Rotation Q and translation a of every A_j, filled one depth level at a time.
-    parent_index = torch.tensor([max(p, 0) for p in parents], dtype=torch.long)
+    parent_index = torch.tensor([max(p, 0) for p in parents], dtype=torch.long, device=rotmats.device)
     root = levels[0]
     rot = torch.zeros_like(rotmats).index_copy(1, root, rotmats[:, root])
     trans = torch.zeros_like(joints).index_copy(1, root, local_trans[:, root])

@@ -16,6 +16,7 @@ import numpy as np
 
 from pghm.errors import PghmError
 from pghm.io.avatar import recorded_path
+from pghm.subject.format import FOV_RANGE_DEG, focal_range
 
 MIN_FRAMES = 8
 """Fewest frames with the person found that make a subject: with the default
@@ -23,8 +24,6 @@ MIN_FRAMES = 8
 
 MIN_SIZE = 16
 """Smallest --size (pixels): below it MediaPipe finds no body."""
-FOV_RANGE_DEG = (1.0, 179.0)
-"""--fov bounds, degrees (a pinhole camera's field of view lies strictly between 0 and 180)."""
 MAX_FOCAL_PX = 1e6
 """Largest --focal, pixels (a 1,000 mm lens on a 1 um-pixel sensor)."""
 DEFAULT_SIZE = 512
@@ -239,6 +238,21 @@ class CaptureConfig:
         if self.max_frames is not None or not self.target_frames or not frame_count:
             return 1
         return max(1, frame_count // self.target_frames)
+
+    def check_camera(self, width: int, height: int) -> None:
+        """Raise :class:`PghmError` when ``focal_px`` gives W x H frames a field of view outside
+        :data:`FOV_RANGE_DEG` (fov = 2 atan((L / 2) / f), L = max(W, H)): no lens has it, and the
+        body fit would meet it as a zero or infinite focal length. Asked as soon as the size is known."""
+        if self.focal_px is None:
+            return
+        longest = max(width, height)
+        low, high = focal_range(longest)
+        if not low <= self.focal_px <= high:
+            fov = math.degrees(2 * math.atan(0.5 * longest / self.focal_px))
+            raise PghmError(
+                f"--focal {self.focal_px:g}: a field of view of {fov:.4g} degrees on these {width}x{height} frames; "
+                f"a lens's {FOV_RANGE_DEG[0]:g} to {FOV_RANGE_DEG[1]:g} degrees are {low:.4g} to {high:.4g} pixels"
+            )
 
     def source_intrinsics(self, width: int, height: int) -> np.ndarray | None:
         """(3, 3) K in pixels of the full upright video frame (W x H), or None when unknown.

@@ -216,6 +216,7 @@ def observe_video(
     frames dropped, and once when a long video is thinned.
     """
     source = open_source(input)
+    config.check_camera(source.width, source.height)
     every = config.stride(source.frame_estimate)
     if config.every is None and every > 1:
         on_warning(
@@ -286,7 +287,7 @@ def capture(
     frames, or an ``out`` that exists and is not an empty folder; ``out`` is then not created.
     """
     config = (config or CaptureConfig()).validate()
-    out = check_output(out, inputs=[input], folder=True)
+    out = check_output(out, inputs=[input, config.polish], folder=True)
     if config.polish is not None:
         _check_polish_prior(config.polish)
     with staged_folder(out) as folder:

@@ -24,6 +24,7 @@ from __future__ import annotations
 import functools
 import os
 import re
+import stat
 import subprocess
 import tempfile
 from collections.abc import Iterator
@@ -34,10 +35,14 @@ import numpy as np
 from PIL import Image, ImageOps
 
 from pghm.capture.crop import Region
-from pghm.errors import PghmError
+from pghm.errors import PghmError, listed
 from pghm.io.read_errors import IMAGE_READ_ERRORS
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".webp", ".tif", ".tiff")
+SHOWN_FILES = 5
+"""Unreadable files an error names before "and N more"."""
+SHOWN_NAME = 40
+"""Characters of a file name shown in a message (longer names are cut in the middle)."""
 """Files of an image folder that are read as frames (case-insensitive)."""
 
 PROBE_SECONDS = 60.0
@@ -272,9 +277,19 @@ class ImageFolder:
 
     @classmethod
     def open(cls, path: Path) -> ImageFolder:
-        files = tuple(sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()))
+        """The folder's images, in name order. Every file named like an image must be one: a dangling
+        link, a link loop, a folder, an unreadable or corrupt file among them refuses the folder, all
+        of them named in one line, before anything is written (docs/capture.md)."""
+        files = tuple(sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES))
         if not files:
             raise PghmError(f"{path.name}: a folder with no images ({', '.join(IMAGE_SUFFIXES)})")
+        bad = [file.name for file in files if _unreadable(file)]
+        if bad:
+            names = listed((_short_name(name) for name in bad), SHOWN_FILES)
+            raise PghmError(
+                f"{path.name}: {len(bad)} of its {len(files)} image file(s) cannot be read ({names}): "
+                "a broken link, a folder, no permission or not an image; remove or replace them"
+            )
         width, height = _upright_size(files[0])
         return cls(path, files, width, height)
 
@@ -321,6 +336,26 @@ def _upright(image: Image.Image) -> tuple[int, int]:
     if image.getexif().get(ImageOps.ExifTags.Base.Orientation, 1) in QUARTER_TURNS:
         return height, width
     return width, height
+
+
+def _short_name(name: str) -> str:
+    """``name``, cut in the middle to :data:`SHOWN_NAME` characters."""
+    if len(name) <= SHOWN_NAME:
+        return name
+    half = (SHOWN_NAME - 3) // 2
+    return f"{name[:half]}...{name[-half:]}"
+
+
+def _unreadable(file: Path) -> bool:
+    """Whether ``file`` is not a readable image: its target missing or a loop, not a regular file, no
+    permission, or a header no image reader parses (a truncated body is found when it is decoded)."""
+    try:
+        if not stat.S_ISREG(os.stat(file).st_mode):
+            return True
+        with Image.open(file):
+            return False
+    except IMAGE_READ_ERRORS:
+        return True
 
 
 def _upright_size(file: Path) -> tuple[int, int]:

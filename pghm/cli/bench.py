@@ -25,7 +25,7 @@ from types import ModuleType
 
 from pghm.cli.options import MAX_IMAGE_SIDE, Integer, Real
 from pghm.errors import PghmError
-from pghm.io.outputs import check_output
+from pghm.io.outputs import FIGURE_SUFFIXES, check_output
 
 MAX_GAUSSIANS = 100_000_000
 MAX_REPEATS = 10_000
@@ -58,7 +58,8 @@ def _splat(args: argparse.Namespace) -> int:
     measure = _lab_module("splat_measure")
     torch.set_num_threads(args.threads)
     output = check_output(args.out / "bench_splat_sweep.json")
-    plot = check_output(args.plot if args.plot is not None else Path("docs") / "splat_pareto.png", option="--plot")
+    plot_path = args.plot if args.plot is not None else Path("docs") / "splat_pareto.png"
+    plot = check_output(plot_path, option="--plot", suffixes=FIGURE_SUFFIXES)
     rows, front = measure.run_sweep(args.gaussians or 10_000, args.resolution or 256, args.repeats or 15, output, plot)
     print(measure.format_table(rows, ["setting", "forward_ms", "forward_backward_ms", "max_abs", "psnr"]))
     print(f"Pareto frontier (forward+backward time vs max abs error): {', '.join(front)}")

@@ -27,9 +27,9 @@ from pghm.io.outputs import check_output
 
 
 def cmd_capture(args: argparse.Namespace) -> int:
+    check_output(args.out, inputs=[args.input, args.polish], folder=True)  # before the heavy imports
     from pghm.capture.pipeline import capture
 
-    check_output(args.out, inputs=[args.input], folder=True)
     config = CaptureConfig(
         every=args.every,
         max_frames=args.max_frames,

@@ -13,7 +13,7 @@ import sys
 
 from pghm.cli.options import Integer
 from pghm.errors import EXIT_USER_ERROR
-from pghm.io.outputs import check_output
+from pghm.io.outputs import PNG_SUFFIXES, check_output
 from pghm.subject import check, count_images
 
 MIN_TILE, MAX_TILE = 16, 2048
@@ -35,7 +35,7 @@ def cmd_data_check(args: argparse.Namespace) -> int:
 def cmd_data_sheet(args: argparse.Namespace) -> int:
     from pghm.synth.sheet import contact_sheet
 
-    check_output(args.out, inputs=[args.dir, args.mono])
+    check_output(args.out, inputs=[args.dir, args.mono], suffixes=PNG_SUFFIXES)
     sheet = contact_sheet(args.dir, args.out, tile=args.tile, mono_dir=args.mono)
     print(f"{args.out}: {sheet.shape[1]}x{sheet.shape[0]}")
     return 0

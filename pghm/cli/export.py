@@ -7,10 +7,20 @@ from __future__ import annotations
 
 import argparse
 
-from pghm.cli.options import INDEX, Integer
-from pghm.io.export import FRONT_DISTANCE, export_posed_ply
+from pghm.cli.options import INDEX, Integer, add_device_option
+from pghm.errors import PghmError
+from pghm.io.export import FRONT_DISTANCE, export_posed_ply, parse_vector
 from pghm.io.outputs import check_output
 from pghm.motion.motion import MAX_FRAMES
+
+
+def _point(text: str) -> str:
+    """An argparse type: ``text`` once :func:`parse_vector` accepts it (refused at the parser, before any load)."""
+    try:
+        parse_vector(text)
+    except PghmError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+    return text
 
 
 def register(subparsers) -> None:
@@ -26,19 +36,24 @@ def register(subparsers) -> None:
     parser.add_argument("--out", required=True, help="the .ply to write")
     parser.add_argument(
         "--view",
+        type=_point,
         default=None,
         help="camera centre X,Y,Z the view-dependent colour is baked for "
         f"(default: {FRONT_DISTANCE:g} m in front of the body)",
     )
     parser.add_argument("--identity", type=INDEX, default=0, help="identity of a prior's bank (default %(default)s)")
     parser.add_argument("--body-model-path", default=None)
+    add_device_option(parser)
     parser.set_defaults(func=cmd_export)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    check_output(args.out, inputs=[args.avatar, args.pose])
+    from pghm.device import resolve_device
+
+    check_output(args.out, inputs=[args.avatar, args.pose, args.body_model_path])
+    device = resolve_device(args.device)
     count = export_posed_ply(
-        args.avatar, args.pose, args.frame, args.out, args.view, args.identity, args.body_model_path
+        args.avatar, args.pose, args.frame, args.out, args.view, args.identity, args.body_model_path, device
     )
     print(f"wrote {args.out}: {count} Gaussians")
     return 0

@@ -13,7 +13,10 @@ waiting OpenMP threads sleep, and torch takes one thread per core other processe
 subcommand, including while the subcommand modules (and torch) are imported: a
 :class:`PghmError` or an ``OSError`` (permission denied, disk full, a folder where a file
 was expected) is one line ``pghm: error: ...`` and exit status 2, running out of memory
-likewise, Ctrl-C is ``pghm: interrupted`` and exit status 130. ``pghm --debug ...`` or
+likewise, Ctrl-C is ``pghm: interrupted`` and exit status 130. SIGTERM (what a system shutdown
+or a job scheduler sends) unwinds the same way, as a :class:`Terminated` raised where the program
+is: outputs being built are discarded and a training run saves its checkpoint, as on Ctrl-C;
+then ``pghm: terminated`` and exit status 143. ``pghm --debug ...`` or
 ``PGHM_DEBUG=1`` re-raises instead, to see the traceback. Anything else is a bug and keeps
 its traceback.
 """
@@ -24,8 +27,11 @@ import argparse
 import errno
 import importlib
 import os
+import signal
 import sys
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 from pghm.cli.threads import set_threads, set_wait_policy
 from pghm.errors import EXIT_USER_ERROR, PghmError
@@ -34,6 +40,8 @@ SUBCOMMAND_MODULES = ("synth", "capture", "data", "motion", "train", "export", "
 """Modules under ``pghm.cli`` that register a subcommand, in ``pghm --help`` order."""
 EXIT_INTERRUPTED = 130
 """Exit status after Ctrl-C (128 + SIGINT), as shells report it."""
+EXIT_TERMINATED = 128 + signal.SIGTERM
+"""Exit status after SIGTERM (143), as shells report it."""
 DEBUG_VARIABLE = "PGHM_DEBUG"
 """Set to 1 to see tracebacks instead of one-line errors (as ``--debug`` does)."""
 OUT_OF_MEMORY_TEXT = ("can't allocate memory", "out of memory", "not enough memory")
@@ -79,15 +87,40 @@ def user_error_line(error: BaseException) -> str | None:
     return None
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the program is: a KeyboardInterrupt, so that everything that cleans up
+    after Ctrl-C (staged outputs, pending files, a training checkpoint) does so after SIGTERM too."""
+
+
+def _raise_terminated(signum: int, frame) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second SIGTERM must not cut the clean-up short
+    raise Terminated
+
+
+@contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM raises :class:`Terminated` inside the block (the main thread only can set handlers)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def guarded(tool: str, work, debug: bool) -> int:
     """Run ``work()`` (returns an exit status) with the error contract of the module doc."""
     try:
-        return int(work() or 0)
-    except KeyboardInterrupt:
+        with sigterm_as_interrupt():
+            return int(work() or 0)
+    except KeyboardInterrupt as stop:
         if debug:
             raise
-        print(f"{tool}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        terminated = isinstance(stop, Terminated)
+        print(f"{tool}: {'terminated' if terminated else 'interrupted'}", file=sys.stderr)
+        return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
     except Exception as error:  # noqa: BLE001 - sorted into user errors and bugs below
         line = user_error_line(error)
         if debug or line is None:

@@ -20,7 +20,7 @@ from pghm.body import BODY_NAMES, BodyModel, RestBody, load_body
 from pghm.cli.options import Integer, Real
 from pghm.errors import MotionFileError
 from pghm.io.atomic import save_figure
-from pghm.io.outputs import check_output
+from pghm.io.outputs import FIGURE_SUFFIXES, check_output
 from pghm.motion.bvh import load_bvh
 from pghm.motion.motion import MAX_FPS, MIN_FPS, Motion
 from pghm.motion.procedural import MAX_PROCEDURAL_FRAMES, PROCEDURAL_MOTIONS, procedural_motion
@@ -141,7 +141,7 @@ def cmd_motion_preview(args: argparse.Namespace) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    check_output(args.out, inputs=[*args.clips, args.body_model_path])
+    check_output(args.out, inputs=[*args.clips, args.body_model_path], suffixes=FIGURE_SUFFIXES)
     body = _body(args)
     rest = body.rest()
     floor = float(rest.vertices[:, 1].min())

@@ -117,6 +117,32 @@ class Size:
         return width, height
 
 
+def add_device_option(parser: argparse.ArgumentParser) -> None:
+    """``--device {auto,cpu,cuda}``, resolved by :func:`pghm.device.resolve_device` when the command runs."""
+    from pghm.device import DEVICE_CHOICES
+
+    parser.add_argument(
+        "--device",
+        choices=DEVICE_CHOICES,
+        default="auto",
+        help="where to compute: cpu, cuda (rendering through gsplat, pip install 'pghm[gpu]') "
+        "or auto (default: cuda when available)",
+    )
+
+
+def rendering_device(name: str):
+    """:func:`pghm.device.resolve_device` of ``name``, and on CUDA gsplat checked before any work:
+    a missing extra is one line at the start, not after the set-up."""
+    from pghm.device import resolve_device
+
+    device = resolve_device(name)
+    if device.type == "cuda":
+        from pghm.splat.gsplat_backend import load_gsplat
+
+        load_gsplat()
+    return device
+
+
 SEED = Integer(0, MAX_SEED)
 STEPS = Integer(0, MAX_STEPS)
 POSITIVE_STEPS = Integer(1, MAX_STEPS)

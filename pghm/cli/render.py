@@ -12,7 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from pghm.cli.options import INDEX, Integer, Real, Size
+from pghm.cli.options import INDEX, Integer, Real, Size, add_device_option, rendering_device
 from pghm.errors import PghmError
 from pghm.motion.motion import MAX_FPS, MIN_FPS
 from pghm.render import DEFAULT_FPS, DEFAULT_SIZE, MAX_RENDER_FRAMES, RenderJob, render_video
@@ -88,6 +88,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--no-follow", action="store_true", help="keep the camera still when the body moves")
     parser.add_argument("--body-model-path", help="the SMPL-X model file, for SMPL-X avatars")
+    add_device_option(parser)
     parser.set_defaults(func=cmd_render)
 
 
@@ -110,6 +111,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         yaw=args.yaw,
         follow=not args.no_follow,
         body_model_path=args.body_model_path,
+        device=str(rendering_device(args.device)),
     )
     summary = render_video(job, log=lambda line: print(f"pghm render: {line}", file=sys.stderr))
     width, height = summary.size

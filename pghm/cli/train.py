@@ -6,13 +6,23 @@ import argparse
 import json
 import logging
 import sys
+from dataclasses import replace
 from pathlib import Path
 
-from pghm.cli.options import MAX_INDEX, POSITIVE_STEPS, SEED, STEPS, Integer, Real
+from pghm.cli.options import (
+    MAX_INDEX,
+    POSITIVE_STEPS,
+    SEED,
+    STEPS,
+    Integer,
+    Real,
+    add_device_option,
+    rendering_device,
+)
 from pghm.cli.render import parse_colour
 from pghm.errors import PghmError
 from pghm.io.atomic import atomic_write_bytes
-from pghm.io.outputs import check_output
+from pghm.io.outputs import PNG_SUFFIXES, check_output
 from pghm.model import ModelConfig
 from pghm.model.config import MAX_CHANNELS
 from pghm.train.background import BACKGROUND_KINDS, WHITE
@@ -100,6 +110,7 @@ def _common(parser: argparse.ArgumentParser, loop: LoopConfig) -> None:
     )
     parser.add_argument("--no-lpips", action="store_true", help="leave the LPIPS term out even if its weights exist")
     parser.add_argument("--body-model-path", default=None, help="your SMPL-X model file, for SMPL-X data")
+    add_device_option(parser)
 
 
 def register(subparsers) -> None:
@@ -155,6 +166,14 @@ def register(subparsers) -> None:
         "((L / L_prior)^2 times the Gaussians; default: the prior's)",
     )
     fit.add_argument(
+        "--detail-steps",
+        type=STEPS,
+        default=fit_defaults.detail.steps,
+        help="steps of a last stage that trains a detail layer: Gaussians at twice the UV resolution whose "
+        "colours are trained texel by texel (4 times the Gaussians; docs/training.md, 'Detail layer'); "
+        "0: none (default %(default)s)",
+    )
+    fit.add_argument(
         "--profile",
         default=None,
         metavar="JSON",
@@ -192,17 +211,25 @@ def register(subparsers) -> None:
         help="behind render and ground truth: white (default, the paper's), black, r,g,b in [0, 1] or #rrggbb",
     )
     evaluate.add_argument("--body-model-path", default=None)
+    add_device_option(evaluate)
     evaluate.set_defaults(func=cmd_eval)
+
+
+QUIET_LOGGERS = ("anny",)
+"""Libraries whose info lines (the body model's cache loads) are not pghm's to print."""
 
 
 def _logging() -> None:
     logging.basicConfig(level=logging.INFO, format="pghm: %(message)s", stream=sys.stderr)
+    for name in QUIET_LOGGERS:
+        logging.getLogger(name).setLevel(logging.WARNING)
 
 
 def cmd_train_prior(args: argparse.Namespace) -> int:
     from pghm.train.prior import train_prior
 
     check_output(args.out, inputs=[args.data_dir, args.body_model_path])
+    device = rendering_device(args.device)
     _logging()
     model = ModelConfig(uv_resolution=args.uv_resolution, latent_channels=args.latent_channels, head=args.head)
     loop = LoopConfig(
@@ -223,7 +250,7 @@ def cmd_train_prior(args: argparse.Namespace) -> int:
         body_model_path=args.body_model_path,
         max_identities=args.identities,
     )
-    avatar = train_prior(args.data_dir, args.out, config, resume=args.resume)
+    avatar = train_prior(args.data_dir, args.out, config, resume=args.resume, device=device)
     print(
         f"wrote {args.out}: {avatar.metadata['identities']} identities, "
         f"{avatar.metadata['steps']} steps, {avatar.metadata['seconds']} s"
@@ -240,6 +267,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         check_output(args.profile, inputs=[args.subject_dir, args.prior, args.body_model_path], option="--profile")
         if Path(args.profile).resolve() == Path(args.out).resolve():
             raise PghmError(f"--out and --profile are the same file ({args.out}); give two names")
+    device = rendering_device(args.device)
     _logging()
     stages = [
         LoopConfig(
@@ -259,15 +287,16 @@ def cmd_fit(args: argparse.Namespace) -> int:
         pose_smoothing=args.pose_smoothing,
         track_steps=args.track_steps,
         uv_resolution=args.uv_resolution,
+        detail=replace(stages[1], steps=args.detail_steps),
         lpips=not args.no_lpips,
         body_model_path=args.body_model_path,
     )
     prior = ModelConfig() if args.prior == "scratch" else args.prior
     if args.profile is None:
-        avatar = fit(args.subject_dir, prior, args.out, config, resume=args.resume)
+        avatar = fit(args.subject_dir, prior, args.out, config, resume=args.resume, device=device)
     else:
         with profiled() as timing:
-            avatar = fit(args.subject_dir, prior, args.out, config, resume=args.resume)
+            avatar = fit(args.subject_dir, prior, args.out, config, resume=args.resume, device=device)
         print(timing.table(), file=sys.stderr)
         atomic_write_bytes(args.profile, json.dumps(timing.record(), indent=2).encode())
     print(f"wrote {args.out}: {avatar.metadata['steps']} steps, {avatar.metadata['seconds']} s")
@@ -281,9 +310,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
     strip = args.strip or f"{args.avatar}.eval.png"
     inputs = [args.avatar, args.subject_dir, args.body_model_path]
     check_output(report, inputs=inputs, option="--report")
-    check_output(strip, inputs=inputs, option="--strip")
+    check_output(strip, inputs=inputs, option="--strip", suffixes=PNG_SUFFIXES)
     if Path(report).resolve() == Path(strip).resolve():
         raise PghmError(f"--report and --strip are the same file ({report}); give two names")
+    device = rendering_device(args.device)
     result = evaluate(
         args.avatar,
         args.subject_dir,
@@ -295,6 +325,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         background=args.background,
         refine_poses=args.refine_poses,
         fit_poses=args.fit_poses,
+        device=device,
     )
     print(json.dumps(result.summary()))
     print(f"wrote {report} and {strip}")

@@ -8,7 +8,8 @@ One versioned file holding everything needed to rebuild and drive an avatar:
     config      the ModelConfig fields
     body        {"name": backend, "shape": (S,) for an avatar, "shapes": (n, S) for a prior}
     latent      (1, C, L, L) full-resolution identity latent of an avatar (None for a prior)
-    weights     the network's state dict (the bank is ``identity_bank``, (n, C, L', L'))
+    weights     the network's state dict (the bank is ``identity_bank``, (n, C, L', L'); with the
+                config's ``detail``, the detail layer's residuals ``detail.maps``, (1, 5, 2L, 2L))
     metadata    training record: data, steps, seconds, metrics (plain JSON-like values)
     pose_track  optional: the pose corrections a fit learned for its video (:class:`PoseTrack`)
 
@@ -24,13 +25,15 @@ from __future__ import annotations
 import io
 import json
 import operator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from pghm.body.model import shape_problem
+from pghm.device import move
 from pghm.errors import AvatarFileError, PghmError
 from pghm.io.atomic import atomic_write_bytes
 from pghm.io.torch_file import TorchFileError, load_torch_file
@@ -38,7 +41,11 @@ from pghm.model.config import ModelConfig
 from pghm.model.pghm import PGHM
 
 FORMAT_NAME = "pghm-avatar"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""Written by this pghm. Version 2 added the model config's detail-layer fields
+(``detail``, ``max_detail_offset``; the layer's map is the weight ``detail.maps``)."""
+READABLE_VERSIONS = (1, FORMAT_VERSION)
+"""Versions this pghm reads: a version 1 file is an avatar without a detail layer."""
 REQUIRED_KEYS = ("format", "version", "kind", "config", "body", "latent", "weights", "metadata")
 KINDS = ("avatar", "prior")
 MAX_BRACKET_STEPS = 3
@@ -139,6 +146,16 @@ class Avatar:
     latent: Tensor | None = None
     metadata: dict = field(default_factory=dict)
     pose_track: PoseTrack | None = None
+
+    @property
+    def device(self) -> torch.device:
+        """Where the network (and an avatar's latent) live; files are written from the CPU."""
+        return self.model.identity_bank.device
+
+    def to(self, device: torch.device | str) -> Avatar:
+        """This avatar with its network (moved in place) and latent on ``device``."""
+        latent = None if self.latent is None else self.latent.to(device)
+        return replace(self, model=self.model.to(device), latent=latent)
 
     def identity_map(self, index: int = 0) -> Tensor:
         """F (1, C, L, L): the personal latent of an avatar, or identity ``index`` of a prior."""
@@ -316,8 +333,9 @@ def load_avatar(path: str | Path) -> Avatar:
         raise _fail(path, "not a pghm avatar file (no 'format: pghm-avatar' marker)")
     if missing:
         raise _fail(path, f"missing keys: {', '.join(missing)}")
-    if not _is_exactly(payload["version"], int, FORMAT_VERSION):
-        raise _fail(path, f"format version {_short(payload['version'])}, this pghm reads version {FORMAT_VERSION}")
+    if not any(_is_exactly(payload["version"], int, version) for version in READABLE_VERSIONS):
+        readable = " and ".join(map(str, READABLE_VERSIONS))
+        raise _fail(path, f"format version {_short(payload['version'])}, this pghm reads versions {readable}")
     if not isinstance(payload["kind"], str) or payload["kind"] not in KINDS:
         raise _fail(path, f"unknown kind {_short(payload['kind'])}")
     try:
@@ -335,6 +353,10 @@ def load_avatar(path: str | Path) -> Avatar:
         raise _fail(path, "'weights.identity_bank' is not a (n, C, L', L') tensor")
     if payload["kind"] == "prior" and bank.shape[0] == 0:
         raise _fail(path, "a prior file must hold at least one identity")
+    if payload["version"] == 1 and config.detail:
+        raise _fail(path, "a format version 1 file cannot hold a detail layer")
+    if payload["kind"] == "prior" and config.detail:
+        raise _fail(path, "a prior file must not hold a detail layer (a fit adds one: pghm fit --detail-steps)")
     # The shapes the config implies, from a model on the meta device (no memory): a config
     # that asks for more than the file holds is rejected before anything is allocated.
     with torch.device("meta"):
@@ -361,6 +383,10 @@ def load_avatar(path: str | Path) -> Avatar:
     shapes = None
     if "shapes" in body:
         shapes = _check_tensor(path, "body.shapes", body["shapes"], (bank.shape[0], shape.shape[0]))
+    for name, values in (("body.shape", shape), ("body.shapes", shapes)):
+        problem = None if values is None else shape_problem(body["name"], values)
+        if problem is not None:
+            raise _fail(path, f"'{name}' {problem}")
     latent = payload["latent"]
     if payload["kind"] == "avatar":
         size = config.uv_resolution
@@ -381,7 +407,7 @@ def load_avatar(path: str | Path) -> Avatar:
 
 
 def avatar_geometry(avatar: Avatar, index: int = 0, body_model_path: str | None = None):
-    """The :class:`~pghm.model.geometry.SubjectGeometry` of identity ``index`` of ``avatar``.
+    """The :class:`~pghm.model.geometry.SubjectGeometry` of identity ``index`` of ``avatar``, on its device.
 
     Args:
         avatar: a loaded avatar or prior.
@@ -389,9 +415,10 @@ def avatar_geometry(avatar: Avatar, index: int = 0, body_model_path: str | None 
         body_model_path: the user's model file for bodies that are not embedded (SMPL-X).
     """
     from pghm.body import load_body
-    from pghm.model.geometry import subject_geometry
+    from pghm.model.geometry import detail_atlas, subject_geometry
     from pghm.uv.atlas import build_atlas
 
     body = load_body(avatar.body_name, body_model_path)
-    atlas = build_atlas(body, avatar.model.config.uv_resolution)
-    return subject_geometry(body, atlas, avatar.shape_of(index))
+    config = avatar.model.config
+    atlas = build_atlas(body, config.uv_resolution)
+    return move(subject_geometry(body, atlas, avatar.shape_of(index), detail_atlas(body, config)), avatar.device)

@@ -2,21 +2,27 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from pghm.errors import PghmError
+from pghm.motion.motion import MAX_TRANSLATION
 
 FRONT_DISTANCE = 3.0
 """Default baking view: this many metres in front of the posed root (+z, the body's front)."""
 
 
 def parse_vector(text: str) -> torch.Tensor:
+    """(3,) a point "X,Y,Z" in metres, each coordinate within the scene's +-MAX_TRANSLATION."""
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
         values = []
-    if len(values) != 3 or not all(torch.isfinite(torch.tensor(values))):
-        raise PghmError(f"expected three comma-separated numbers like 0,1,3, got {text!r}")
+    if len(values) != 3 or not all(math.isfinite(v) and abs(v) <= MAX_TRANSLATION for v in values):
+        raise PghmError(
+            f"expected three comma-separated numbers of metres within +-{MAX_TRANSLATION:g}, like 0,1,3, got {text!r}"
+        )
     return torch.tensor(values)
 
 
@@ -28,32 +34,36 @@ def export_posed_ply(
     view: str | None = None,
     identity: int = 0,
     body_model_path: str | None = None,
+    device: torch.device | str = "cpu",
 ) -> int:
     """Write the dynamic Gaussians of ``avatar_path`` in frame ``frame`` of ``pose_source``.
 
     The view-dependent colour is baked for a camera centred at ``view`` ("X,Y,Z"; default
-    FRONT_DISTANCE in front of the posed root). Returns the number of Gaussians written.
+    FRONT_DISTANCE in front of the posed root). The network runs on ``device``. Returns the
+    number of Gaussians written.
     """
+    from pghm.device import move
+
     from pghm.body import load_body
     from pghm.io.avatar import avatar_geometry, load_avatar
     from pghm.io.ply import write_ply
     from pghm.model.evaluator import CachedEvaluator
     from pghm.motion.open_motion import open_motion
 
-    avatar = load_avatar(avatar_path)
+    avatar = load_avatar(avatar_path).to(device)
     avatar.check_identity(identity)
     body = load_body(avatar.body_name, body_model_path)
     motion = open_motion(pose_source, body, avatar.shape_of(identity), avatar.pose_track)
     if not 0 <= frame < motion.num_frames:
         raise PghmError(f"--frame {frame} is outside the motion's {motion.num_frames} frames")
-    pose = motion.pose(frame)
+    pose = move(motion.pose(frame), avatar.device)
     geometry = avatar_geometry(avatar, identity, body_model_path)
     evaluator = CachedEvaluator(avatar.model, geometry)
     if view is None:
         root = evaluator.model.skin(geometry, pose).root[0]
-        centre = root + torch.tensor([0.0, 0.0, FRONT_DISTANCE])
+        centre = root + torch.tensor([0.0, 0.0, FRONT_DISTANCE], device=root.device)
     else:
-        centre = parse_vector(view)
-    gaussians = evaluator.evaluate(avatar.identity_map(identity), pose, centre).dynamic
+        centre = move(parse_vector(view), avatar.device)
+    gaussians = move(evaluator.evaluate(avatar.identity_map(identity), pose, centre).dynamic, torch.device("cpu"))
     write_ply(out, gaussians.means[0], gaussians.scales[0], gaussians.colors[0], gaussians.opacities[0])
     return gaussians.num_gaussians

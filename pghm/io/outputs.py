@@ -11,7 +11,11 @@
 - a folder that cannot be written (probed by creating and removing a hidden file in the
   nearest existing ancestor: ``os.access`` says yes to root on a read-only mount or ``/sys``),
 - a path that is one of the inputs (same file by ``os.path.samefile``, through symlinks and
-  hard links, or the same resolved path), which would be overwritten.
+  hard links, or the same resolved path), which would be overwritten;
+- a name whose suffix the writer cannot produce (a figure as ``.txt``, a PNG as ``.jpg``),
+- a path inside an input folder (``capture FRAMES --out FRAMES/subject``: the input would change
+  under the run, and the next run would read the output as input), and a folder output that
+  holds an input.
 
 Missing parent folders are not created here (a refused run leaves nothing); the writers of
 :mod:`pghm.io.atomic` create them when they write.
@@ -41,6 +45,13 @@ from pathlib import Path
 
 from pghm.errors import PghmError
 
+FIGURE_SUFFIXES = (
+    ".avif", ".eps", ".gif", ".jpeg", ".jpg", ".pdf", ".pgf", ".png", ".ps", ".raw", ".rgba", ".svg", ".svgz",
+    ".tif", ".tiff", ".webp",
+)  # fmt: skip
+"""The suffixes matplotlib's Agg canvas saves a figure as (:func:`pghm.io.atomic.save_figure`)."""
+PNG_SUFFIXES = (".png",)
+"""Outputs written as PNG bytes whatever their name."""
 STAGING_SUFFIX = ".partial"
 """Folder outputs are built in ``.<name>.<random>.partial`` beside their destination."""
 
@@ -75,11 +86,31 @@ def _same_file(a: Path, b: Path) -> bool:
     return a.resolve() == b.resolve()
 
 
+def _inside(inner: Path, outer: Path) -> bool:
+    """Whether ``inner`` lies in the folder ``outer`` (resolved, through symlinks)."""
+    return outer.resolve() in inner.resolve().parents
+
+
+def _check_against_inputs(path: Path, inputs: Iterable[str | os.PathLike | None], text: str) -> None:
+    """Refuse an output that is an input, lies inside an input folder, or holds an input."""
+    for source in inputs:
+        if source is None or not os.path.lexists(source):
+            continue
+        source = Path(source)
+        if os.path.lexists(path) and _same_file(path, source):
+            raise PghmError(f"{text}: is also an input ({source}); writing it would destroy that input")
+        if source.is_dir() and _inside(path, source):
+            raise PghmError(f"{text}: is inside the input folder {source}; write it elsewhere")
+        if _inside(source, path):
+            raise PghmError(f"{text}: holds the input {source}; write it elsewhere")
+
+
 def check_output(
     path: str | os.PathLike,
     inputs: Iterable[str | os.PathLike | None] = (),
     folder: bool = False,
     option: str = "--out",
+    suffixes: tuple[str, ...] = (),
 ) -> Path:
     """``path`` as a Path, after refusing what would fail or destroy an input (see the module doc).
 
@@ -89,9 +120,12 @@ def check_output(
         folder: the output is a folder, built with :func:`staged_folder` (it may exist as an
             empty folder, never a non-empty one: nothing of another run is mixed in or lost).
         option: the option's name, for the message.
+        suffixes: the name endings the writer produces (lower case; empty: any name).
     """
     path = Path(path)
     text = f"{option} {path}"
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise PghmError(f"{text}: must end in {', '.join(suffixes)} (the format written)")
     if os.path.lexists(path):
         mode = os.stat(path).st_mode if path.exists() else os.lstat(path).st_mode
         if folder and not stat.S_ISDIR(mode):
@@ -110,9 +144,7 @@ def check_output(
     reason = _probe_writable(directory)
     if reason is not None:
         raise PghmError(f"{text}: cannot write in {directory}: {reason}")
-    for source in inputs:
-        if source is not None and os.path.lexists(source) and os.path.lexists(path) and _same_file(path, Path(source)):
-            raise PghmError(f"{text}: is also an input ({source}); writing it would destroy that input")
+    _check_against_inputs(path, inputs, text)
     return path
 
 

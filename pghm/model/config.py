@@ -11,7 +11,8 @@ from dataclasses import asdict, dataclass, fields
 from typing import Literal
 
 from pghm.errors import PghmError
-from pghm.uv.atlas import check_resolution
+from pghm.model.detail import DETAIL_FACTOR
+from pghm.uv.atlas import MAX_RESOLUTION, check_resolution
 
 MAX_CHANNELS = 4096
 """Largest channel count accepted: far above any sensible width, low enough that a corrupted
@@ -64,6 +65,14 @@ class ModelConfig:
     max_scale: float = 0.05
     """Absolute bounds (metres) on every Gaussian's scale."""
 
+    detail: bool = False
+    """Place the Gaussians on a 2L atlas with per-texel colour, scale and lift residuals trained directly
+    (:mod:`pghm.model.detail`); False: the paper's model, one Gaussian per L texel."""
+
+    max_detail_offset: float = 0.01
+    """Bound (metres) on the detail layer's lift of a Gaussian along the surface normal (cloth
+    folds, the edges of clothes: a few millimetres)."""
+
     def __post_init__(self) -> None:
         check_resolution(self.uv_resolution)
         for name in ("latent_channels", "encoder_channels", "decoder_channels", "condition_channels"):
@@ -84,6 +93,12 @@ class ModelConfig:
             )
         if self.uv_resolution >> (levels - 1) < 4:
             raise PghmError(f"model config: {levels} levels are too many for L = {self.uv_resolution}")
+        if type(self.detail) is not bool:
+            raise PghmError(f"model config: detail must be true or false, got {self.detail!r}")
+        if self.detail and DETAIL_FACTOR * self.uv_resolution > MAX_RESOLUTION:
+            raise PghmError(
+                f"model config: a detail layer needs {DETAIL_FACTOR}L <= {MAX_RESOLUTION}, L is {self.uv_resolution}"
+            )
         if self.head not in ("multi", "single"):
             raise PghmError(f"model config: head must be 'multi' or 'single', got {self.head!r}")
 
@@ -110,6 +125,7 @@ class ModelConfig:
 _BOUNDS = (
     ("max_static_offset", 0.0, 10.0),
     ("max_pose_offset", 0.0, 10.0),
+    ("max_detail_offset", 0.0, 10.0),
     ("scale_factor_range", 1.0, 1e6),
     ("base_scale_factor", 1e-6, 1e3),
     ("min_scale", 1e-9, 10.0),

@@ -21,7 +21,9 @@ V_c^o -> ``view_color``. With the texel points posed on the skinned mesh (pghm.u
     opacity = 1, rotation = identity (isotropic Gaussians)
 
 so scales stay within [base / r, base r] (never zero, negative or absurd) and colours in
-(0, 1). ``base`` is ``base_scale_factor`` times the surface length a texel spans.
+(0, 1). ``base`` is ``base_scale_factor`` times the surface length a texel spans. With a
+detail layer (``ModelConfig.detail``) the same formulas run on the 2L texels, on the network's
+outputs upsampled and a trained per-texel colour residual and lift (:mod:`pghm.model.detail`).
 
 The regulariser (the paper's L_reg, an L2 penalty keeping offsets near their initial
 values) is, with u = ``REG_POSITION_UNIT``:
@@ -41,10 +43,13 @@ from torch import Tensor, nn
 
 from pghm.body.pose import BodyPose
 from pghm.body.skinning import blend_transform_deltas, skin_directions
+from pghm.errors import PghmError
 from pghm.model.config import ModelConfig
+from pghm.model.detail import LIFT_CHANNEL, DetailLayer, DetailSkinned, pose_detail, upsample
 from pghm.model.gaussians import Gaussians
 from pghm.model.geometry import SubjectGeometry
 from pghm.model.networks import FeatureDecoder, Pyramid, PyramidDecoder, PyramidEncoder
+from pghm.uv.atlas import UVAtlas
 from pghm.uv.maps import gather_from_map, posed_points, scatter_to_map, view_directions
 
 STATIC_CHANNELS = 7
@@ -107,6 +112,7 @@ class Skinned:
         normals: (B, N, 3) posed unit normals.
         root: (B, 3) posed root joint.
         pose_input: (B, 3, L, L) E_p's input: U_theta in the root frame minus V_bar.
+        detail: the posed 2L texels of a model with a detail layer, else None.
     """
 
     transforms: Tensor
@@ -115,6 +121,7 @@ class Skinned:
     normals: Tensor
     root: Tensor
     pose_input: Tensor
+    detail: DetailSkinned | None = None
 
     def select(self, index: Tensor) -> Skinned:
         """The poses ``index`` (B,) of this batch, e.g. one per view of a shared pose."""
@@ -129,8 +136,14 @@ class Skinned:
                     self.root,
                     self.pose_input,
                 )
-            )
+            ),
+            detail=None if self.detail is None else self.detail.select(index),
         )
+
+    @property
+    def gaussian_normals(self) -> Tensor:
+        """(B, N, 3) posed unit normals at the Gaussians' texels (the 2L texels' with a detail layer)."""
+        return self.normals if self.detail is None else self.detail.normals
 
 
 @dataclass
@@ -188,6 +201,7 @@ class PGHM(nn.Module):
         else:
             both = tuple(2 * c for c in cond)
             self.single_decoder = PyramidDecoder(skip, both, up, STATIC_CHANNELS + POSE_CHANNELS + VIEW_CHANNELS)
+        self.detail = DetailLayer(config.uv_resolution) if config.detail else None
         self.run_counts: Counter[str] = Counter()
         for name in COMPONENTS:
             if hasattr(self, name):
@@ -231,6 +245,12 @@ class PGHM(nn.Module):
         model.load_state_dict(weights)
         return model.train(self.training)
 
+    def with_detail(self) -> PGHM:
+        """This model with a zero detail layer (:mod:`pghm.model.detail`; a new model, this one unchanged)."""
+        model = PGHM(replace(self.config, detail=True), num_identities=self.num_identities)
+        model.load_state_dict({**self.state_dict(), "detail.maps": model.detail.maps.detach()})
+        return model.train(self.training)
+
     @property
     def num_identities(self) -> int:
         return self.identity_bank.shape[0]
@@ -269,7 +289,15 @@ class PGHM(nn.Module):
         # U_theta in the root frame: A_root^-1 x = R^T (x - t), minus V_bar (zero at rest).
         in_root = (points - root_translation[:, None]) @ root_rotation
         pose_input = scatter_to_map(in_root - surface.positions, geometry.atlas)
-        return Skinned(transforms, points, rotation_delta, normals, root, pose_input)
+        detail = self._skin_detail(geometry, transforms) if self.detail is not None else None
+        return Skinned(transforms, points, rotation_delta, normals, root, pose_input, detail)
+
+    @staticmethod
+    def _skin_detail(geometry: SubjectGeometry, transforms: Tensor) -> DetailSkinned:
+        """The 2L texels posed by (B, J, 4, 4) ``transforms``, as :meth:`skin` poses the L texels."""
+        if geometry.detail is None:
+            raise PghmError("the model has a detail layer; its subject geometry was built without the 2L atlas")
+        return pose_detail(geometry.detail.surface, transforms)
 
     def pose_branch(self, features: IdentityFeatures, skinned: Skinned) -> PoseBranch:
         """E_p, and D_pose for the multi-head model."""
@@ -312,16 +340,65 @@ class PGHM(nn.Module):
         ``view=None`` the view-dependent colour (the dynamic set then equals the static one
         in what is left out). The single-head model needs ``view``, which holds every output.
         """
-        atlas = geometry.atlas
         batch = skinned.surface_points.shape[0]
+        static, pose_out, view_offset = self._gather(features, pose, view, geometry.atlas, batch)
+        if self.detail is not None:
+            return self._detail_gaussians(static, pose_out, view_offset, skinned, geometry)
+        return self._gaussians(
+            static, pose_out, view_offset, skinned.surface_points, skinned.rotation_delta, geometry.texel_length
+        )
+
+    def _gather(
+        self, features: IdentityFeatures, pose: PoseBranch | None, view: Tensor | None, atlas: UVAtlas, batch: int
+    ) -> tuple[Tensor, Tensor | None, Tensor | None]:
+        """The network outputs at the valid texels: static (B, N, 7), pose (B, N, 4) and view (B, N, 3)
+        (the multi-head model's pose or view None where its branch was left out)."""
         if self.multi_head:
             static = gather_from_map(features.static, atlas).expand(batch, -1, -1)
             pose_out = gather_from_map(pose.maps, atlas) if pose is not None else None
             view_offset = gather_from_map(view, atlas) if view is not None else None
-        else:
-            static, pose_out, view_offset = gather_from_map(view, atlas).split(
-                [STATIC_CHANNELS, POSE_CHANNELS, VIEW_CHANNELS], -1
-            )
+            return static, pose_out, view_offset
+        return gather_from_map(view, atlas).split([STATIC_CHANNELS, POSE_CHANNELS, VIEW_CHANNELS], -1)
+
+    def _detail_gaussians(
+        self,
+        static: Tensor,
+        pose_out: Tensor | None,
+        view_offset: Tensor | None,
+        skinned: Skinned,
+        geometry: SubjectGeometry,
+    ) -> AvatarOutput:
+        """Both Gaussian sets on the 2L texels: the network outputs upsampled, the detail residuals
+        added (:mod:`pghm.model.detail`)."""
+        detail = geometry.detail
+        static, pose_out, view_offset = (
+            None if values is None else upsample(values, detail) for values in (static, pose_out, view_offset)
+        )
+        residual = gather_from_map(self.detail.maps, detail.atlas)  # (1, N2, 5)
+        # The log-scale and colour residuals join D_static's channels 3..6; the offsets get none.
+        static = static + F.pad(residual[..., :LIFT_CHANNEL], (STATIC_CHANNELS - LIFT_CHANNEL, 0))
+        lift = self.config.max_detail_offset * torch.tanh(residual[..., LIFT_CHANNEL:]) * skinned.detail.normals
+        return self._gaussians(
+            static,
+            pose_out,
+            view_offset,
+            skinned.detail.surface_points + lift,
+            skinned.detail.rotation_delta,
+            detail.texel_length,
+        )
+
+    def _gaussians(
+        self,
+        static: Tensor,
+        pose_out: Tensor | None,
+        view_offset: Tensor | None,
+        surface_points: Tensor,
+        rotation_delta: Tensor,
+        texel_length: Tensor,
+    ) -> AvatarOutput:
+        """The paper's activations (module docstring) on per-texel network outputs (B, N, C) at
+        texels posed at ``surface_points`` (B, N, 3) with ``rotation_delta`` (B, N, 3, 3), whose
+        base scale follows ``texel_length`` (N,)."""
         config = self.config
         log_range = math.log(config.scale_factor_range)
         static_offset = config.max_static_offset * torch.tanh(static[..., 0:3])
@@ -334,16 +411,16 @@ class PGHM(nn.Module):
             dynamic_log_scale = static_log_scale
         color_logit = static[..., 4:7]
         dynamic_logit = color_logit + view_offset if view_offset is not None else color_logit
-        base = (config.base_scale_factor * geometry.texel_length).clamp(config.min_scale, config.max_scale)
+        base = (config.base_scale_factor * texel_length).clamp(config.min_scale, config.max_scale)
         base = base.to(static.dtype)
 
         def place(offset: Tensor) -> Tensor:
-            return skinned.surface_points + offset + (skinned.rotation_delta @ offset[..., None])[..., 0]
+            return surface_points + offset + (rotation_delta @ offset[..., None])[..., 0]
 
         def scales(log_scale: Tensor) -> Tensor:
             return (base * torch.exp(log_scale)).clamp(config.min_scale, config.max_scale)
 
-        opacities = torch.ones(batch, atlas.num_texels, dtype=static.dtype)
+        opacities = torch.ones(surface_points.shape[:2], dtype=static.dtype, device=static.device)
         regularizer = (
             static_offset.square().sum(-1).mean() / REG_POSITION_UNIT**2
             + pose_offset.square().sum(-1).mean() / REG_POSITION_UNIT**2

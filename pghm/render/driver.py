@@ -17,6 +17,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from pghm.device import move
 from pghm.errors import PghmError
 
 GaussianSet = Literal["dynamic", "static"]
@@ -85,10 +86,12 @@ class AvatarDriver:
 
     Set-up builds the body, the subject geometry of identity ``index`` (its body shape) and a
     :class:`~pghm.model.evaluator.CachedEvaluator`; :meth:`evaluate` re-runs only what
-    changed and returns the same :class:`GaussianArrays` object when nothing did.
+    changed and returns the same :class:`GaussianArrays` object when nothing did. The network
+    runs on the avatar's device; poses and camera centres come from the CPU and the arrays go
+    back there.
 
     Args:
-        avatar: a loaded :class:`~pghm.io.avatar.Avatar`.
+        avatar: a loaded :class:`~pghm.io.avatar.Avatar`, on the device to evaluate it on.
         index: identity of a prior whose body shape to use (ignored for an avatar).
         body_model_path: the model file of bodies that are not embedded (SMPL-X).
     """
@@ -102,7 +105,7 @@ class AvatarDriver:
         self.index = index
         self.body = load_body(avatar.body_name, body_model_path)
         self.geometry = avatar_geometry(avatar, index, body_model_path)
-        self.rest = self.body.rest(self.geometry.shape)
+        self.rest = self.body.rest(self.geometry.shape.cpu())
         self._timed = _TimedModel(avatar.model)
         self.evaluator = CachedEvaluator(self._timed, self.geometry)
         self.times = StageTimes()
@@ -141,21 +144,27 @@ class AvatarDriver:
             raise PghmError(f"gaussians must be 'dynamic' or 'static', got {gaussians!r}")
         start = time.perf_counter()
         self._timed.skinning_ms = 0.0
-        centre = torch.as_tensor(np.asarray(camera_centre, dtype=np.float32))
+        device = self.avatar.device
+        centre = torch.as_tensor(np.asarray(camera_centre, dtype=np.float32), device=device)
         dynamic = gaussians == "dynamic"
         output = self.evaluator.evaluate(
-            identity_map, pose, centre, dynamic=dynamic, view_dependent=dynamic and view_dependent, interrupt=interrupt
+            identity_map,
+            move(pose, device),
+            centre,
+            dynamic=dynamic,
+            view_dependent=dynamic and view_dependent,
+            interrupt=interrupt,
         )
         # The same output object means nothing re-ran; the single-head model returns it for
         # either set, so the set is part of the key.
         if self._key is None or self._key[0] is not output or self._key[1] != dynamic:
-            chosen = output.dynamic if dynamic else output.static
+            chosen = move(output.dynamic if dynamic else output.static, torch.device("cpu"))
             self._arrays = GaussianArrays(
                 means=chosen.means[0].numpy().astype(np.float32),
                 scales=chosen.scales[0].numpy().astype(np.float32),
                 colors=chosen.colors[0].numpy().astype(np.float32),
                 opacities=chosen.opacities[0].numpy().astype(np.float32),
-                normals=self._timed.skinned.normals[0].numpy().astype(np.float32),
+                normals=self._timed.skinned.gaussian_normals[0].cpu().numpy().astype(np.float32),
             )
             self._key = (output, dynamic)
         total = (time.perf_counter() - start) * 1e3
@@ -164,5 +173,6 @@ class AvatarDriver:
 
     def root_position(self, pose) -> np.ndarray:
         """(3,) the posed root joint of a 1-pose BodyPose (for cameras that follow the body)."""
-        transforms = self.geometry.transforms(pose)[0, 0]
-        return (transforms[:3, :3] @ self.geometry.joints[0] + transforms[:3, 3]).numpy().astype(np.float64)
+        transforms = self.geometry.transforms(move(pose, self.avatar.device))[0, 0]
+        root = transforms[:3, :3] @ self.geometry.joints[0] + transforms[:3, 3]
+        return root.cpu().numpy().astype(np.float64)

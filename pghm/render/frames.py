@@ -62,9 +62,12 @@ class GLFrames:
 
 
 class CPUFrames:
-    """Gaussian arrays -> float RGB through the CPU splatter ``pghm.splat.render`` (the spec)."""
+    """Gaussian arrays -> float RGB through ``pghm.splat.render`` on ``device``: the CPU splatter
+    (the spec), or gsplat on CUDA."""
 
-    driver = "CPU splatter (pghm.splat)"
+    def __init__(self, device: torch.device = torch.device("cpu")) -> None:
+        self.device = device
+        self.driver = "CPU splatter (pghm.splat)" if device.type == "cpu" else f"gsplat on {device}"
 
     def check_size(self, width: int, height: int) -> None:
         """Any size within the render job's pixel budget (checked there)."""
@@ -74,22 +77,24 @@ class CPUFrames:
         from pghm.splat import render
 
         out = render(
-            torch.from_numpy(arrays.means),
-            torch.from_numpy(arrays.scales),
-            torch.from_numpy(arrays.colors),
-            torch.from_numpy(arrays.opacities),
+            torch.from_numpy(arrays.means).to(self.device),
+            torch.from_numpy(arrays.scales).to(self.device),
+            torch.from_numpy(arrays.colors).to(self.device),
+            torch.from_numpy(arrays.opacities).to(self.device),
             camera,
             background=background,
         )
-        return out.rgb.numpy()
+        return out.rgb.cpu().numpy()
 
     def release(self) -> None:
         """Nothing to free."""
 
 
 @contextmanager
-def frame_renderer(backend: Backend, log: Callable[[str], None] | None = None) -> Iterator[GLFrames | CPUFrames]:
-    """A :class:`GLFrames` or :class:`CPUFrames`, released on exit.
+def frame_renderer(
+    backend: Backend, log: Callable[[str], None] | None = None, device: torch.device = torch.device("cpu")
+) -> Iterator[GLFrames | CPUFrames]:
+    """A :class:`GLFrames` or :class:`CPUFrames` (splatting on ``device``), released on exit.
 
     "auto" is GL when a headless EGL context can be made, else the CPU splatter (``log``
     is told why in one line): same image either way, up to the 2e-3 GL/CPU tolerance.
@@ -102,9 +107,9 @@ def frame_renderer(backend: Backend, log: Callable[[str], None] | None = None) -
         except DisplayError as error:
             if log is not None:
                 log(f"no headless OpenGL ({str(error).splitlines()[0]}); rendering with the CPU splatter")
-            frames = CPUFrames()
+            frames = CPUFrames(device)
     else:
-        frames = GLFrames() if backend == "gl" else CPUFrames()
+        frames = GLFrames() if backend == "gl" else CPUFrames(device)
     try:
         yield frames
     finally:

@@ -23,7 +23,7 @@ from pghm.render.driver import AvatarDriver, GaussianSet
 from pghm.render.frame_cache import FrameCache, PackedFrame
 from pghm.render.frames import Backend, CPUFrames, frame_renderer
 from pghm.render.framing import DEFAULT_FOV_Y, frame_points, orbit_camera
-from pghm.render.sinks import open_sink, output_kind, to_uint8
+from pghm.render.sinks import check_frame_size, open_sink, output_kind, to_uint8
 
 DEFAULT_SIZE = (640, 480)
 """(W, H) of ``pghm render`` images."""
@@ -77,6 +77,8 @@ class RenderJob:
     """Keep the camera aimed at the moving root (horizontal translation only)."""
     body_model_path: str | None = None
     """The model file of bodies that are not embedded (SMPL-X)."""
+    device: str = "cpu"
+    """Where the network runs, and the splatter when ``backend`` is "cpu" (on CUDA: gsplat)."""
 
 
 @dataclass(frozen=True)
@@ -154,14 +156,16 @@ def render_video(job: RenderJob, log: Callable[[str], None] = print) -> RenderSu
             f"--size {width}x{height}: each side must be positive and the image at most {MAX_RENDER_PIXELS:,} pixels"
         )
     folder = output_kind(job.out) == "dir"  # a bad output name is refused before the slow work
-    check_output(job.out, inputs=[job.avatar, job.motion], folder=folder)
-    avatar = load_avatar(job.avatar)
+    check_output(job.out, inputs=[job.avatar, job.motion, job.body_model_path], folder=folder)
+    check_frame_size(job.out, width, height)
+    avatar = load_avatar(job.avatar).to(job.device)
     avatar.check_identity(job.identity)
     driver = AvatarDriver(avatar, job.identity, job.body_model_path)
-    motion = open_motion(job.motion, driver.body, driver.geometry.shape, avatar.pose_track) if job.motion else None
+    shape = driver.geometry.shape.cpu()
+    motion = open_motion(job.motion, driver.body, shape, avatar.pose_track) if job.motion else None
     specs = plan_frames(job, motion)
     identity_map = avatar.identity_map(job.identity)
-    rest_points = driver.geometry.surface.positions.numpy()
+    rest_points = driver.geometry.surface.positions.cpu().numpy()
     framing = frame_points(rest_points, DEFAULT_FOV_Y, width / height)
     rest_root = driver.root_position(driver.rest_pose())
 
@@ -174,7 +178,7 @@ def render_video(job: RenderJob, log: Callable[[str], None] = print) -> RenderSu
     reused = 0
     sink = open_sink(job.out, job.fps, on_fallback=log)
     try:
-        with frame_renderer(job.backend, log) as renderer:
+        with frame_renderer(job.backend, log, avatar.device) as renderer:
             renderer.check_size(width, height)
             for spec in specs:
                 pose = motion.pose(spec.motion_frame) if motion is not None else driver.rest_pose()

@@ -66,13 +66,18 @@ class Mp4Sink:
         self._writer = None
         self._pending: PendingFile | None = None
 
+    @staticmethod
+    def check_size(width: int, height: int) -> None:
+        """Raise :class:`PghmError` unless H.264 in yuv420p can hold W x H frames (even sides)."""
+        if width % 2 or height % 2:
+            raise PghmError(f"an MP4 (H.264, yuv420p) needs an even width and height, got {width} x {height}")
+
     def write(self, image: np.ndarray) -> None:
         import imageio_ffmpeg
 
         height, width = image.shape[:2]
         if self._writer is None:
-            if width % 2 or height % 2:
-                raise PghmError(f"an MP4 (H.264, yuv420p) needs an even width and height, got {width} x {height}")
+            self.check_size(width, height)
             self._size = (width, height)
             self._pending = PendingFile(self.path, suffix=".mp4")
             self._writer = imageio_ffmpeg.write_frames(
@@ -167,6 +172,13 @@ def output_kind(path: str | Path) -> Literal["mp4", "png", "dir"]:
     if suffix in (".mp4", ".png"):
         return suffix[1:]
     raise PghmError(f"{path}: output must be a .mp4, a .png or a directory, not {suffix}")
+
+
+def check_frame_size(path: str | Path, width: int, height: int) -> None:
+    """Raise :class:`PghmError` when the writer :func:`open_sink` picks for ``path`` cannot take
+    W x H frames: asked before any rendering, so that a refused size costs nothing."""
+    if output_kind(path) == "mp4" and encoder_available():
+        Mp4Sink.check_size(width, height)
 
 
 def open_sink(path: str | Path, fps: float, on_fallback: Callable[[str], None] | None = None) -> FrameSink:

@@ -45,7 +45,9 @@ opacities and colours outside [0, 1] included: the formulas below say what they 
    (as 3DGS); the ALPHA_MIN cut-off makes alpha discontinuous at the footprint's rim.
 
 Gradients flow to means, scales, colors, opacities and, when it requires grad, to the
-camera's world_to_camera (pose refinement). :class:`SplatSettings` switches on measured
+camera's world_to_camera (pose refinement). CUDA tensors render through gsplat
+(:mod:`pghm.splat.gsplat_backend`, the ``gpu`` extra), which follows this spec in float32
+with the differences listed there. :class:`SplatSettings` switches on measured
 approximations (all off by default).
 
 Public surface::

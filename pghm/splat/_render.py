@@ -1,9 +1,12 @@
-"""``render``: validates, moves the Gaussians to camera space, projects them, and hands them to a rasteriser."""
+"""``render``: validates, moves the Gaussians to camera space, projects them, and hands them to a rasteriser.
+
+CPU tensors go to the CPU splatter (native kernel or torch twin), CUDA tensors to gsplat
+(:mod:`pghm.splat.gsplat_backend`): the device of the inputs picks the path."""
 
 from __future__ import annotations
 
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -15,9 +18,12 @@ from pghm.splat import _torch_impl
 from pghm.splat._projection import footprints, project, to_camera
 from pghm.splat._settings import SplatSettings
 from pghm.splat.camera import Camera
+from pghm.splat.gsplat_backend import render_gsplat
 
-Backend = Literal["auto", "native", "torch"]
-BACKENDS: tuple[str, ...] = ("auto", "native", "torch")
+Backend = Literal["auto", "native", "torch", "gsplat"]
+BACKENDS: tuple[str, ...] = ("auto", "native", "torch", "gsplat")
+CPU_BACKENDS: tuple[str, ...] = ("native", "torch")
+"""Backends that render CPU tensors; "gsplat" renders CUDA tensors."""
 
 
 @dataclass(frozen=True)
@@ -40,6 +46,8 @@ def _check_gaussians(means: Tensor, scales: Tensor, colors: Tensor, opacities: T
     if not isinstance(means, Tensor) or means.dim() not in (2, 3) or means.shape[-1] != 3:
         got = tuple(means.shape) if isinstance(means, Tensor) else type(means).__name__
         raise PghmError(f"render: means must be an (N, 3) or (B, N, 3) tensor, got {got}")
+    if means.device.type not in ("cpu", "cuda"):
+        raise PghmError(f"render: tensors on {means.device} cannot be splatted; use the CPU or CUDA")
     leading = tuple(means.shape[:-1])
     expected = {"scales": leading, "colors": (*leading, 3), "opacities": leading}
     for name, value in (("means", means), ("scales", scales), ("colors", colors), ("opacities", opacities)):
@@ -55,8 +63,8 @@ def _check_gaussians(means: Tensor, scales: Tensor, colors: Tensor, opacities: T
             raise PghmError(f"render: {name} must be float32 or float64, got {value.dtype}")
         if value.dtype != means.dtype:
             raise PghmError(f"render: {name} is {value.dtype} but means is {means.dtype}; use one dtype")
-        if value.device.type != "cpu":
-            raise PghmError(f"render: {name} must be on the CPU, got {value.device}")
+        if value.device != means.device:
+            raise PghmError(f"render: {name} is on {value.device} but means on {means.device}; use one device")
         finite = torch.isfinite(value.detach())
         if not bool(finite.all()):
             count = int((~finite).sum())
@@ -77,9 +85,21 @@ def _background(background: Sequence[float] | Tensor, dtype: torch.dtype) -> Ten
     return value.to(dtype)
 
 
-def _rasteriser(backend: str):
+def _check_backend(backend: str, device: torch.device, settings: SplatSettings) -> None:
+    """PghmError unless ``backend`` can render tensors on ``device`` with ``settings``."""
     if backend not in BACKENDS:
         raise PghmError(f"render: backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+    if device.type == "cpu" and backend == "gsplat":
+        raise PghmError("render: backend 'gsplat' renders CUDA tensors; these are on the CPU")
+    if device.type == "cpu":
+        return
+    if backend in CPU_BACKENDS:
+        raise PghmError(f"render: CUDA tensors render through gsplat (backend 'auto' or 'gsplat'), not {backend!r}")
+    if not settings.is_exact:
+        raise PghmError("render: SplatSettings apply to the CPU splatter; gsplat has its own fixed approximations")
+
+
+def _rasteriser(backend: str):
     if backend == "torch":
         return _torch_impl.rasterize
     # Imported here, not at the top, so that `python -m pghm.splat.native` (the pre-build step)
@@ -134,7 +154,9 @@ def render(
         camera: one camera, or a batch of B (Gaussians and cameras broadcast over B).
         background: (3,) colour behind everything, a tuple or tensor (no gradient).
         settings: approximations to switch on; None is the exact spec.
-        backend: "native" (C++ kernel), "torch" (readable twin) or "auto" (native if it builds).
+        backend: "native" (C++ kernel), "torch" (readable twin) or "auto" (native if it builds)
+            for CPU tensors; "gsplat" or "auto" for CUDA tensors (:mod:`pghm.splat.gsplat_backend`,
+            float32, with the differences to this spec listed there).
 
     Returns:
         rgb (B, H, W, 3), alpha (B, H, W), depth (B, H, W) in the Gaussians' dtype, with B
@@ -149,16 +171,40 @@ def render(
     if gaussian_batch is not None and camera_batch is not None and gaussian_batch != camera_batch:
         raise PghmError(f"render: {gaussian_batch} batched Gaussian sets but {camera_batch} cameras")
     batch = gaussian_batch or camera_batch or 1
-    rasterize = _rasteriser(backend)
+    _check_backend(backend, means.device, settings)
 
     means, scales, colors, opacities = (
         value.expand(batch, *value.shape[-dims:]) if gaussian_batch is None else value
         for value, dims in ((means, 2), (scales, 1), (colors, 2), (opacities, 1))
     )
-    pose = camera.world_to_camera.expand(batch, 4, 4)
+    if means.device.type == "cpu":
+        rasterize = _rasteriser(backend)
+        rgb, alpha, depth = _render_cpu(means, scales, colors, opacities, camera, background, settings, rasterize)
+    else:
+        rgb, alpha, depth = render_gsplat(
+            means, scales, colors, opacities, camera, _background(background, colors.dtype)
+        )
+    if gaussian_batch is None and camera_batch is None:
+        rgb, alpha, depth = rgb[0], alpha[0], depth[0]
+    return RenderOutput(rgb=rgb, alpha=alpha, depth=depth)
+
+
+def _render_cpu(
+    means: Tensor,
+    scales: Tensor,
+    colors: Tensor,
+    opacities: Tensor,
+    camera: Camera,
+    background: Sequence[float] | Tensor,
+    settings: SplatSettings,
+    rasterize: Callable[..., tuple[Tensor, Tensor, Tensor]],
+) -> tuple[Tensor, Tensor, Tensor]:
+    """rgb (B, H, W, 3), alpha (B, H, W), depth (B, H, W) of (B, N, ...) Gaussians by the CPU splatter."""
+    batch = means.shape[0]
+    pose = camera.world_to_camera.to(means.device).expand(batch, 4, 4)
     projection = project(to_camera(means, pose), scales, camera.intrinsics(batch), camera.width, camera.height)
     prints = footprints(projection, opacities, camera.width, camera.height, settings)
-    rgb, alpha, depth = rasterize(
+    return rasterize(
         projection.means2d,
         projection.conics,
         colors,
@@ -170,6 +216,3 @@ def render(
         camera.height,
         settings,
     )
-    if gaussian_batch is None and camera_batch is None:
-        rgb, alpha, depth = rgb[0], alpha[0], depth[0]
-    return RenderOutput(rgb=rgb, alpha=alpha, depth=depth)

@@ -85,7 +85,7 @@ class Camera:
         pose = pose.detach().to(torch.float64)
         if not bool(torch.isfinite(pose).all()):
             raise PghmError("camera: world_to_camera must be finite")
-        bottom = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64)
+        bottom = pose.new_tensor([0.0, 0.0, 0.0, 1.0])
         if not bool(((pose[..., 3, :] - bottom).abs() <= RIGID_ROW_TOLERANCE).all()):
             raise PghmError("camera: world_to_camera's bottom row must be (0, 0, 0, 1)")
         batch_sizes["world_to_camera"] = pose.shape[0] if pose.dim() == 3 else None

@@ -27,7 +27,7 @@ one image or mask at a time.
 
 from pghm.subject.checker import Problem, check, check_subject, count_images
 from pghm.subject.format import ALL_SPLIT, SubjectArrays, image_name, stated_pose_noise
-from pghm.subject.reader import Dataset, Frame, Subject, SubjectSplit, read_mask, read_rgb
+from pghm.subject.reader import Dataset, Frame, Subject, SubjectSplit, is_dataset, open_subjects, read_mask, read_rgb
 from pghm.subject.writer import npz_bytes, write_dataset_meta, write_image, write_subject
 
 __all__ = [
@@ -42,7 +42,9 @@ __all__ = [
     "check_subject",
     "count_images",
     "image_name",
+    "is_dataset",
     "npz_bytes",
+    "open_subjects",
     "read_mask",
     "read_rgb",
     "stated_pose_noise",

@@ -10,16 +10,21 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from pghm.body.model import shape_problem
 from pghm.io.read_errors import IMAGE_READ_ERRORS, NPZ_READ_ERRORS
 from pghm.subject.format import (
     CAMERA_KEYS,
     DATASET_FORMAT,
+    FOV_RANGE_DEG,
     FRAME_MARGIN,
+    INDEX_KEYS,
+    MAX_FRAME_INDEX,
     NUMERIC_KEYS,
     POSE_KEYS,
     SUBJECT_FORMAT,
     _first_line,
     _non_numeric,
+    focal_range,
     image_name,
     indices_text,
     stated_aligned_frames,
@@ -64,11 +69,14 @@ def _check_cameras(cameras: dict, poses: dict | None, problems: list[Problem]) -
     K = cameras["K"].astype(np.float64)
     E = cameras["world_to_camera"].astype(np.float64)
     finite = np.isfinite(K).reshape(len(K), -1).all(1) & np.isfinite(E).reshape(len(E), -1).all(1)
-    bad_focal = finite & ~((K[:, 0, 0] > 0) & (K[:, 1, 1] > 0))
+    longest = np.maximum(cameras["width"], cameras["height"]).astype(np.float64).clip(min=1.0)
+    shortest_focal, longest_focal = focal_range(1.0)
+    focal = np.stack([K[:, 0, 0], K[:, 1, 1]], axis=1) / longest[:, None]
+    bad_focal = finite & ~((focal >= shortest_focal) & (focal <= longest_focal)).all(1)
     if bad_focal.any():
-        problems.append(
-            Problem("cameras.npz", f"K has a non-positive focal length for image(s) {indices_text(bad_focal)}")
-        )
+        low, high = FOV_RANGE_DEG
+        message = f"K's focal length is outside a field of view of {low:g} to {high:g} degrees for image(s)"
+        problems.append(Problem("cameras.npz", f"{message} {indices_text(bad_focal)}"))
     rotation = E[:, :3, :3]
     not_rigid = np.zeros(len(E), bool)
     for _, message, bad in value_problems(cameras, None):
@@ -106,6 +114,16 @@ def _check_cameras(cameras: dict, poses: dict | None, problems: list[Problem]) -
         )
 
 
+def _check_indices(cameras: dict, problems: list[Problem]) -> None:
+    """frame_index and view_index in 0..MAX_FRAME_INDEX - 1 (one pose slot is allocated per frame)."""
+    for key in INDEX_KEYS:
+        if key in cameras:
+            bad = ~((cameras[key] >= 0) & (cameras[key] < MAX_FRAME_INDEX))
+            if bad.any():
+                message = f"'{key}' must be in 0..{MAX_FRAME_INDEX - 1} for image(s) {indices_text(bad)}"
+                problems.append(Problem("cameras.npz", message))
+
+
 def _check_png(path: Path, label: str, mode: str, size: tuple[int, int], problems: list[Problem]) -> None:
     """Size and mode of one PNG, and its pixels decoded (a truncated file fails there, not in
     training)."""
@@ -128,11 +146,14 @@ def _check_png(path: Path, label: str, mode: str, size: tuple[int, int], problem
         problems.append(Problem(label, f"unreadable PNG ({_first_line(error)})"))
 
 
-def check_subject(directory: str | Path) -> list[Problem]:
-    """Every problem found in a subject folder (empty when it is valid).
+def check_subject(directory: str | Path, images: bool = True) -> list[Problem]:
+    """Every problem found in a subject folder (empty when it is valid): the one validator of the
+    format, run by ``pghm data check`` and by :meth:`~pghm.subject.reader.Subject.open` (every command
+    that reads a subject).
 
-    Reads the small files whole, then streams through the images and masks, decoding each
-    (one at a time) so a truncated PNG is found here.
+    Reads the small files whole, then (with ``images``) streams through the images and masks,
+    decoding each (one at a time) so a truncated PNG is found here. Without ``images`` the
+    readers meet a damaged image when they load it.
     """
     directory = Path(directory)
     problems: list[Problem] = []
@@ -160,7 +181,9 @@ def check_subject(directory: str | Path) -> list[Problem]:
         problems.append(Problem("cameras.npz", "describes no images"))
         return problems
     shapes_ok = True
-    for key, shape in (("K", (n, 3, 3)), ("world_to_camera", (n, 4, 4)), ("height", (n,)), ("width", (n,))):
+    camera_shapes = {"K": (n, 3, 3), "world_to_camera": (n, 4, 4), "height": (n,), "width": (n,)}
+    camera_shapes.update({key: (n,) for key in INDEX_KEYS if key in cameras})
+    for key, shape in camera_shapes.items():
         if cameras[key].shape != shape:
             problems.append(Problem("cameras.npz", f"'{key}' has shape {cameras[key].shape}, expected {shape}"))
             shapes_ok = False
@@ -174,8 +197,9 @@ def check_subject(directory: str | Path) -> list[Problem]:
             if poses[key].shape != shape:
                 problems.append(Problem("poses.npz", f"'{key}' has shape {poses[key].shape}, expected {shape}"))
                 continue
-        if not np.isfinite(np.asarray(poses["shape"], dtype=np.float64)).all():
-            problems.append(Problem("poses.npz", "'shape' is not finite"))
+        bad_shape = shape_problem(str(poses["body"]), np.asarray(poses["shape"], dtype=np.float64))
+        if bad_shape is not None:
+            problems.append(Problem("poses.npz", f"'shape' {bad_shape}"))
         if poses["translation"].shape != (n, 3):
             poses = None
     if shapes_ok:
@@ -183,6 +207,7 @@ def check_subject(directory: str | Path) -> list[Problem]:
         for file, message, bad in value_problems(cameras, pose_values):
             problems.append(Problem(file, f"{message} for image(s) {indices_text(bad)}"))
         _check_cameras(cameras, poses, problems)
+        _check_indices(cameras, problems)
 
     splits_path = directory / "splits.json"
     try:
@@ -193,6 +218,8 @@ def check_subject(directory: str | Path) -> list[Problem]:
             for name, indices in splits.items():
                 if not isinstance(indices, list) or not all(type(i) is int and 0 <= i < n for i in indices):
                     problems.append(Problem("splits.json", f"split {name!r} must list image indices in 0..{n - 1}"))
+            if splits["train"] == []:
+                problems.append(Problem("splits.json", "split 'train' is empty: a subject needs images to train on"))
             if isinstance(splits.get("test"), list) and isinstance(splits["train"], list):
                 shared = {i for i in splits["train"] if type(i) is int} & {i for i in splits["test"] if type(i) is int}
                 if shared:
@@ -210,6 +237,8 @@ def check_subject(directory: str | Path) -> list[Problem]:
         problems.append(
             Problem("cameras.npz", f"height and width must be positive for image(s) {indices_text(bad_size)}")
         )
+        return problems
+    if not images:
         return problems
     for folder in ("images", "masks"):
         if not (directory / folder).is_dir():

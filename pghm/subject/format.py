@@ -154,6 +154,20 @@ def _non_numeric(arrays: dict[str, np.ndarray], keys: tuple[str, ...]) -> list[t
 
 MAX_FRAME_INDEX = 10**6
 """Largest frame_index accepted: one pose-correction slot is allocated per frame up to it."""
+INDEX_KEYS = ("frame_index", "view_index")
+"""Optional per-image integers of cameras.npz: the frame of the video and the camera of the ring."""
+FOV_RANGE_DEG = (1.0, 179.0)
+"""A camera's field of view along its image's longest side, degrees: what lenses give (a pinhole's
+lies strictly between 0 and 180; a focal length outside it is a unit mistake or corrupt data)."""
+
+
+def focal_range(longest_side: float) -> tuple[float, float]:
+    """(shortest, longest) focal length in pixels whose field of view across ``longest_side`` pixels
+    lies in :data:`FOV_RANGE_DEG`: f = (L / 2) / tan(fov / 2)."""
+    low, high = (0.5 * longest_side / math.tan(math.radians(fov) / 2) for fov in reversed(FOV_RANGE_DEG))
+    return low, high
+
+
 MAX_INTRINSIC = 1e7
 """Largest |entry| of K, in pixels (a focal length of 1e7 px is a 0.006 degree field of view)."""
 VALUE_BOUNDS = {

@@ -13,21 +13,16 @@ from PIL import Image
 
 from pghm.errors import DatasetError
 from pghm.io.read_errors import IMAGE_READ_ERRORS, NPZ_READ_ERRORS
+from pghm.subject.checker import check_subject
 from pghm.subject.format import (
     ALL_SPLIT,
     CAMERA_KEYS,
     DATASET_FORMAT,
-    MAX_FRAME_INDEX,
-    NUMERIC_KEYS,
     POSE_KEYS,
-    SUBJECT_FORMAT,
     SubjectArrays,
     _first_line,
-    _non_numeric,
     image_name,
-    indices_text,
     stated_aligned_frames,
-    value_problems,
 )
 
 
@@ -94,72 +89,13 @@ def _read_npz(path: Path, required: tuple[str, ...]) -> dict[str, np.ndarray]:
     return arrays
 
 
-def _check_values(directory: Path, cameras: dict[str, np.ndarray], poses: dict[str, np.ndarray]) -> None:
-    """Values every use of a subject needs (its shapes already checked); DatasetError names the first bad one.
-
-    Cameras and poses must be finite with positive focal lengths and image sizes, frame and
-    view indices in range: a NaN camera or pose would otherwise reach training as a silent NaN.
-    ``pghm data check`` lists every problem; this stops at the first.
-    """
-
-    def fail(file: str, message: str, bad: np.ndarray) -> DatasetError:
-        return DatasetError(
-            f"{directory / file}: {message} for image(s) {indices_text(bad)}; run pghm data check {directory}"
-        )
-
-    for file, message, bad in value_problems(cameras, poses):
-        raise fail(file, message, bad)
-    K = cameras["K"].astype(np.float64)
-    bad_focal = ~((K[:, 0, 0] > 0) & (K[:, 1, 1] > 0))
-    if bad_focal.any():
-        raise fail("cameras.npz", "K has a non-positive focal length", bad_focal)
-    bad_size = ~((cameras["height"] >= 1) & (cameras["width"] >= 1))
-    if bad_size.any():
-        raise fail("cameras.npz", "height and width must be positive", bad_size)
-    for key in ("frame_index", "view_index"):
-        if key in cameras:
-            bad_index = ~((cameras[key] >= 0) & (cameras[key] < MAX_FRAME_INDEX))
-            if bad_index.any():
-                raise fail("cameras.npz", f"'{key}' must be in 0..{MAX_FRAME_INDEX - 1}", bad_index)
-    if not np.isfinite(np.atleast_1d(poses["shape"]).astype(np.float64)).all():
-        raise DatasetError(f"{directory / 'poses.npz'}: 'shape' is not finite")
-
-
 def _read_arrays(directory: Path) -> SubjectArrays:
-    """The subject's arrays, with every shape checked (raises DatasetError)."""
+    """The arrays of a subject that :func:`~pghm.subject.checker.check_subject` found valid (read, not
+    checked again)."""
     cameras = _read_npz(directory / "cameras.npz", CAMERA_KEYS)
     poses = _read_npz(directory / "poses.npz", POSE_KEYS)
-    for file, arrays in (("cameras.npz", cameras), ("poses.npz", poses)):
-        for key, problem in _non_numeric(arrays, NUMERIC_KEYS[file]):
-            raise DatasetError(f"{directory / file}: '{key}' {problem}")
-    n = len(cameras["K"])
-    if n == 0:
-        raise DatasetError(f"{directory / 'cameras.npz'}: describes no images")
     bones = [str(name) for name in np.atleast_1d(poses["bone_names"])]
-    expected = {
-        ("cameras.npz", "K"): (cameras["K"], (n, 3, 3)),
-        ("cameras.npz", "world_to_camera"): (cameras["world_to_camera"], (n, 4, 4)),
-        ("cameras.npz", "height"): (cameras["height"], (n,)),
-        ("cameras.npz", "width"): (cameras["width"], (n,)),
-        ("poses.npz", "rotations"): (poses["rotations"], (n, len(bones), 3)),
-        ("poses.npz", "translation"): (poses["translation"], (n, 3)),
-    }
-    for key in ("frame_index", "view_index"):
-        if key in cameras:
-            expected[("cameras.npz", key)] = (cameras[key], (n,))
-    for key, like in (("rotations_true", "rotations"), ("translation_true", "translation")):
-        if key in poses:
-            expected[("poses.npz", key)] = (poses[key], poses[like].shape)
-    for (file, key), (array, shape) in expected.items():
-        if array.shape != shape:
-            raise DatasetError(f"{directory / file}: '{key}' has shape {array.shape}, expected {shape}")
-    _check_values(directory, cameras, poses)
     splits = _read_json(directory / "splits.json")
-    if not isinstance(splits, dict) or not all(isinstance(v, list) for v in splits.values()):
-        raise DatasetError(f'{directory / "splits.json"}: expected {{"train": [indices], ...}}')
-    for name, indices in splits.items():
-        if not all(type(i) is int and 0 <= i < n for i in indices):
-            raise DatasetError(f"{directory / 'splits.json'}: split {name!r} has an index outside 0..{n - 1}")
     return SubjectArrays(
         K=cameras["K"].astype(np.float32),
         world_to_camera=cameras["world_to_camera"].astype(np.float32),
@@ -233,15 +169,18 @@ class Subject:
 
     @classmethod
     def open(cls, directory: str | Path) -> Subject:
-        """Open a subject folder; raises :class:`DatasetError` naming the first structural problem."""
+        """Open a subject folder; raises :class:`DatasetError` naming the first problem
+        :func:`~pghm.subject.checker.check_subject` finds (the checks of ``pghm data check`` but
+        the images' pixels)."""
         directory = Path(directory)
         if not directory.is_dir():
             raise DatasetError(f"{directory}: not a folder")
-        meta = _read_json(directory / "meta.json")
-        if not isinstance(meta, dict) or meta.get("format") != SUBJECT_FORMAT:
-            found = meta.get("format") if isinstance(meta, dict) else None
-            raise DatasetError(f"{directory / 'meta.json'}: not a {SUBJECT_FORMAT} (format is {found!r})")
-        return cls(directory, _read_arrays(directory), meta)
+        problems = check_subject(directory, images=False)
+        if problems:
+            more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+            first = problems[0]
+            raise DatasetError(f"{directory / first.path}: {first.message}{more}; run pghm data check {directory}")
+        return cls(directory, _read_arrays(directory), _read_json(directory / "meta.json"))
 
     def __len__(self) -> int:
         return len(self.arrays)
@@ -317,3 +256,18 @@ class Dataset(Sequence[Subject]):
 
     def __getitem__(self, index: int) -> Subject:  # type: ignore[override]
         return Subject.open(self.directory / self.names[index])
+
+
+def is_dataset(path: str | Path) -> bool:
+    """Whether ``path`` holds a data set, by its meta.json's format (a subject otherwise: its own
+    checks then name what is missing, cameras.npz rather than the data set's meta.json)."""
+    try:
+        meta = json.loads((Path(path) / "meta.json").read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError):
+        return False
+    return isinstance(meta, dict) and meta.get("format") == DATASET_FORMAT
+
+
+def open_subjects(path: str | Path) -> list[Subject]:
+    """The subjects of a data set folder, or the one subject of a subject folder."""
+    return list(Dataset.open(path)) if is_dataset(path) else [Subject.open(path)]

@@ -9,14 +9,32 @@ meta.json; how many processes render (``--workers``) is not, as it does not chan
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Literal, get_args
 
 from pghm.errors import PghmError
+from pghm.motion.motion import MAX_FPS, MAX_FRAMES, MIN_FPS
 from pghm.synth.poses import MOTION_KINDS
 
 Capture = Literal["multiview", "monocular"]
+MAX_IDENTITIES = 10_000
+"""Most subjects of one data set (the prior's bank holds one latent map per subject)."""
+MAX_VIEWS = 360
+"""Most cameras of a ring: one a degree."""
+MAX_DISTANCE_M = 1000.0
+"""Farthest camera, metres: the body is then a few pixels tall in any image synth renders."""
+MAX_NOISE_DEG = 180.0
+"""Largest pose noise, degrees: beyond a half turn an axis-angle component means nothing more."""
+MAX_TRANSLATION_NOISE_M = 10.0
+"""Largest root translation noise, metres (five body heights)."""
+MAX_LAPS = 100.0
+"""Most turns around the walking circle during the training frames."""
+MAX_ANGLE_DEG = 360.0
+"""Largest |camera pan| of the monocular clip, degrees."""
+ELEVATION_LIMIT_DEG = 80.0
+"""Largest |camera elevation|, degrees: the ring looks at the body, not straight down on it."""
 
 
 @dataclass(frozen=True)
@@ -120,45 +138,91 @@ class SynthConfig:
     built-in ones of :mod:`pghm.synth.poses`."""
 
     def validate(self) -> SynthConfig:
-        """Raise :class:`PghmError` naming the first invalid field; return self."""
-        checks = [
+        """Raise :class:`PghmError` naming the first invalid field and its value; return self.
+
+        Every number must be finite and within the range that makes physical sense (a camera
+        ring of 1 to 360 views, distances up to 1 km, frame rates of motion files, ...).
+        """
+        for field in fields(self):
+            value = getattr(self, field.name)
+            numbers = value if isinstance(value, tuple) else (value,)
+            if any(isinstance(v, float) and not math.isfinite(v) for v in numbers):
+                raise PghmError(f"synth config: '{field.name}' must be finite, got {value}")
+        for name in ("camera_distance", "camera_elevation_deg"):
+            value = getattr(self, name)
+            if len(value) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+                raise PghmError(f"synth config: '{name}' must be two numbers [low, high], got {list(value)}")
+        for ok, message in self._checks():
+            if not ok:
+                raise PghmError(f"synth config: {message}")
+        return self
+
+    def _checks(self) -> list[tuple[bool, str]]:
+        """(holds, message naming the field, its range and its value) for every field with a range."""
+        near, far = self.camera_distance
+        low, high = self.camera_elevation_deg
+        return [
             (self.capture in get_args(Capture), f"capture must be one of {', '.join(get_args(Capture))}"),
-            (self.identities >= 1, "identities must be >= 1"),
-            (self.views >= 1, "views must be >= 1"),
-            (self.frames >= 1, "frames must be >= 1"),
-            (self.test_frames >= 0, "test_frames must be >= 0"),
+            (
+                1 <= self.identities <= MAX_IDENTITIES,
+                f"identities must be 1 to {MAX_IDENTITIES}, got {self.identities}",
+            ),
+            (1 <= self.views <= MAX_VIEWS, f"views must be 1 to {MAX_VIEWS}, got {self.views}"),
+            (1 <= self.frames <= MAX_FRAMES, f"frames must be 1 to {MAX_FRAMES}, got {self.frames}"),
+            (self.test_frames >= 0, f"test_frames must be >= 0, got {self.test_frames}"),
             (self.capture == "monocular" or self.test_frames < self.frames, "test_frames must be < frames"),
             (
-                self.novel_views >= 0 and self.novel_view_stride >= 1,
-                "novel_views must be >= 0 and novel_view_stride >= 1",
+                0 <= self.novel_views <= MAX_VIEWS and 1 <= self.novel_view_stride <= MAX_FRAMES,
+                f"novel_views must be 0 to {MAX_VIEWS} and novel_view_stride 1 to {MAX_FRAMES}",
             ),
-            (16 <= self.width <= 4096 and 16 <= self.height <= 4096, "width and height must be 16 to 4096 pixels"),
+            (
+                16 <= self.width <= 4096 and 16 <= self.height <= 4096,
+                f"width and height must be 16 to 4096 pixels, got {self.width} x {self.height}",
+            ),
             (self.texture_size in (32, 64, 128, 256, 512, 1024), "texture_size must be a power of two from 32 to 1024"),
-            (self.fps > 0 and self.frame_stride >= 1, "fps must be > 0 and frame_stride >= 1"),
+            (MIN_FPS <= self.fps <= MAX_FPS, f"fps must be {MIN_FPS:g} to {MAX_FPS:g}, got {self.fps:g}"),
+            (1 <= self.frame_stride <= MAX_FRAMES, f"frame_stride must be 1 to {MAX_FRAMES}, got {self.frame_stride}"),
             (
                 len(self.motions) > 0 and all(m in MOTION_KINDS for m in self.motions),
                 f"motions must be among {', '.join(MOTION_KINDS)}",
             ),
             (
-                0 < self.camera_distance[0] <= self.camera_distance[1],
-                "camera_distance must be [near, far] with 0 < near <= far",
+                0 < near <= far <= MAX_DISTANCE_M,
+                f"camera_distance must be [near, far] with 0 < near <= far <= {MAX_DISTANCE_M:g} m, "
+                f"got [{near}, {far}]",
             ),
             (
-                -80 <= self.camera_elevation_deg[0] <= self.camera_elevation_deg[1] <= 80,
-                "camera_elevation_deg must be [low, high] within -80..80",
+                -ELEVATION_LIMIT_DEG <= low <= high <= ELEVATION_LIMIT_DEG,
+                f"camera_elevation_deg must be [low, high] within -{ELEVATION_LIMIT_DEG:g}..{ELEVATION_LIMIT_DEG:g}, "
+                f"got [{low}, {high}]",
             ),
-            (0 < self.fill <= 1, "fill must be in (0, 1]"),
-            (self.mono_distance > 1.5, "mono_distance must be > 1.5 m"),
-            (self.walk_laps > 0, "walk_laps must be > 0"),
+            (0 < self.fill <= 1, f"fill must be in (0, 1], got {self.fill}"),
+            (
+                1.5 < self.mono_distance <= MAX_DISTANCE_M,
+                f"mono_distance must be in (1.5, {MAX_DISTANCE_M:g}] m, got {self.mono_distance}",
+            ),
+            (
+                abs(self.mono_elevation_deg) <= ELEVATION_LIMIT_DEG,
+                f"mono_elevation_deg must be within -{ELEVATION_LIMIT_DEG:g}..{ELEVATION_LIMIT_DEG:g}, "
+                f"got {self.mono_elevation_deg}",
+            ),
+            (
+                abs(self.mono_drift_deg) <= MAX_ANGLE_DEG,
+                f"mono_drift_deg must be within -{MAX_ANGLE_DEG:g}..{MAX_ANGLE_DEG:g}, got {self.mono_drift_deg}",
+            ),
+            (0 < self.walk_laps <= MAX_LAPS, f"walk_laps must be in (0, {MAX_LAPS:g}], got {self.walk_laps}"),
             (self.mono_motion in MOTION_KINDS, f"mono_motion must be one of {', '.join(MOTION_KINDS)}"),
-            (self.pose_noise_deg >= 0 and self.translation_noise_m >= 0, "noise levels must be >= 0"),
-            (1 <= self.msaa_samples <= 16, "msaa_samples must be 1 to 16"),
-            (0 <= self.png_compression <= 9, "png_compression must be 0 to 9"),
+            (
+                0 <= self.pose_noise_deg <= MAX_NOISE_DEG,
+                f"pose_noise_deg must be 0 to {MAX_NOISE_DEG:g}, got {self.pose_noise_deg}",
+            ),
+            (
+                0 <= self.translation_noise_m <= MAX_TRANSLATION_NOISE_M,
+                f"translation_noise_m must be 0 to {MAX_TRANSLATION_NOISE_M:g} m, got {self.translation_noise_m}",
+            ),
+            (1 <= self.msaa_samples <= 16, f"msaa_samples must be 1 to 16, got {self.msaa_samples}"),
+            (0 <= self.png_compression <= 9, f"png_compression must be 0 to 9, got {self.png_compression}"),
         ]
-        for ok, message in checks:
-            if not ok:
-                raise PghmError(f"synth config: {message}")
-        return self
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -225,5 +289,8 @@ def load_config(name_or_path: str) -> SynthConfig:
     unknown = sorted(set(data) - known)
     if unknown:
         raise PghmError(f"synth config {path}: unknown field(s) {', '.join(unknown)}")
-    values = {name: _coerce(name, value, getattr(defaults, name)) for name, value in data.items()}
-    return replace(defaults, **values).validate()
+    try:
+        values = {name: _coerce(name, value, getattr(defaults, name)) for name, value in data.items()}
+        return replace(defaults, **values).validate()
+    except PghmError as error:
+        raise PghmError(str(error).replace("synth config:", f"synth config {path}:", 1)) from None

@@ -10,9 +10,8 @@ import roma
 import torch
 from PIL import Image
 
-from pghm.errors import DatasetError
 from pghm.io.atomic import atomic_write_bytes
-from pghm.subject import Dataset, Subject
+from pghm.subject import Subject, open_subjects
 
 GAP = 4
 """Pixels of white between subjects and between the grid and the strip."""
@@ -69,7 +68,7 @@ def contact_sheet(
     Returns:
         (H, W, 3) uint8, the sheet.
     """
-    subjects = _subjects(dataset_dir)
+    subjects = open_subjects(dataset_dir)
     pairs = []
     for subject in subjects:
         front, back = front_and_back(subject)
@@ -84,7 +83,7 @@ def contact_sheet(
         y, x = r * (tile + GAP), c * (pair_width + GAP)
         sheet[y : y + tile, x : x + pair_width] = pair
     if mono_dir is not None:
-        strip = _strip(_subjects(mono_dir)[0], strip_frames, width)
+        strip = _strip(open_subjects(mono_dir)[0], strip_frames, width)
         sheet = np.concatenate([sheet, np.full((GAP, width, 3), 255, np.uint8), strip])
     buffer = _png(sheet)
     atomic_write_bytes(out, buffer)
@@ -101,14 +100,6 @@ def _strip(subject: Subject, count: int, width: int) -> np.ndarray:
         x = k * (size + GAP)
         strip[:, x : x + size] = _tile(subject, index, size)
     return strip
-
-
-def _subjects(path: str | Path) -> list[Subject]:
-    path = Path(path)
-    try:
-        return list(Dataset.open(path))
-    except DatasetError:
-        return [Subject.open(path)]
 
 
 def _png(pixels: np.ndarray) -> bytes:

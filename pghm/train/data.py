@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,14 +22,16 @@ from PIL import Image
 from torch import Tensor, nn
 
 from pghm.body.model import BodyModel
-from pghm.errors import DatasetError, PghmError
+from pghm.errors import DatasetError, PghmError, listed
 from pghm.io.read_errors import IMAGE_READ_ERRORS
 from pghm.splat import Camera
-from pghm.subject import Dataset, Frame, Subject, read_mask, stated_pose_noise
+from pghm.subject import Frame, Subject, open_subjects, read_mask, stated_pose_noise
 from pghm.train.person_crop import Crop, crop_size, mask_box, place
 from pghm.train.pose_smoothing import smooth_track
 
 log = logging.getLogger(__name__)
+SHOWN_FILES = 5
+"""Unopenable files an error names before "and N more"."""
 
 STEP_SEED_STRIDE = 1_000_003
 """Mixes the step into the sampling seed: generator seed = seed * stride + step."""
@@ -135,10 +138,7 @@ class TrainingData:
         root = Path(root)
         if not root.is_dir():
             raise DatasetError(f"{root}: data folder not found")
-        if (root / "cameras.npz").is_file():
-            self.subjects = [Subject.open(root)]
-        else:
-            self.subjects = list(Dataset.open(root))
+        self.subjects = open_subjects(root)
         if max_identities is not None:
             if max_identities < 1:
                 raise DatasetError(f"max_identities must be at least 1, got {max_identities}")
@@ -155,10 +155,10 @@ class TrainingData:
         self.images = [np.asarray(subject.split(split).indices, dtype=np.int64) for subject in self.subjects]
         self.split = split
         self.bad: set[tuple[int, int]] = set()
-        for identity, (subject, images) in enumerate(zip(self.subjects, self.images)):
+        for subject, images in zip(self.subjects, self.images):
             if len(images) == 0:
                 raise DatasetError(f"{subject.directory}: no '{split}' images")
-            self._check_files(identity, subject, images)
+            self._check_files(subject, images)
         # One pose-correction slot per (identity, frame): the views of an instant share it.
         self.frame_offsets = []
         offset = 0
@@ -193,40 +193,41 @@ class TrainingData:
         size = crop_size([box for box in boxes.values() if box is not None], width, height, margin)
         return {index: place(box, size, width, height) for index, box in boxes.items()}
 
-    def _check_files(self, identity: int, subject: Subject, images: np.ndarray) -> None:
-        """Every image and mask of the split exists with the size cameras.npz gives (PNG headers only).
+    def _check_files(self, subject: Subject, images: np.ndarray) -> None:
+        """Every image and mask of the split opens, with the size cameras.npz gives (PNG headers only).
 
-        A missing file or a wrong size is a broken data set: DatasetError, before any step
-        runs. A file whose header cannot even be parsed is a corrupted frame, skipped with a
-        warning like one that fails to decode later (see :meth:`load_group`).
+        A missing file or a wrong size is a broken data set, and a file that cannot be opened (a
+        broken link, a link loop, no permission, not an image) is damage found before any step:
+        DatasetError, every such file named in one line, as ``pghm capture`` refuses a frame
+        folder. Pixels damaged behind a valid header are found only when decoded: that frame is
+        left out with a warning (see :meth:`load_group`).
         """
         arrays = subject.arrays
-        unreadable: dict[int, str] = {}
+        unreadable: list[str] = []
         for index in images.tolist():
             size = (int(arrays.width[index]), int(arrays.height[index]))
             for path in (subject.image_path(index), subject.mask_path(index)):
-                if not path.is_file():
+                if not os.path.lexists(path):
                     raise DatasetError(
                         f"{path}: missing ({self.split} image {index}); run pghm data check {subject.directory}"
                     )
                 try:
                     with Image.open(path) as image:
                         found = image.size
-                except IMAGE_READ_ERRORS as error:
-                    unreadable[index] = f"{path}: unreadable image ({error})"
-                    break
+                except IMAGE_READ_ERRORS:
+                    unreadable.append(str(path.relative_to(subject.directory)))
+                    continue
                 if found != size:
                     raise DatasetError(
                         f"{path}: {found[0]}x{found[1]} pixels, cameras.npz says {size[0]}x{size[1]}; "
                         f"run pghm data check {subject.directory}"
                     )
-        if len(unreadable) == len(images):
+        if unreadable:
             raise DatasetError(
-                f"{subject.directory}: none of its {len(images)} '{self.split}' images can be read "
-                f"(first: {next(iter(unreadable.values()))})"
+                f"{subject.directory}: {len(unreadable)} file(s) of its '{self.split}' images and masks cannot be "
+                f"opened ({listed(unreadable, SHOWN_FILES)}): a broken link, no permission or not a PNG; "
+                f"run pghm data check {subject.directory}"
             )
-        for index, reason in unreadable.items():
-            self._skip(identity, index, reason)
 
     def _skip(self, identity: int, index: int, error: object) -> None:
         self.bad.add((identity, index))
@@ -243,6 +244,15 @@ class TrainingData:
     @property
     def num_identities(self) -> int:
         return len(self.subjects)
+
+    def check_body(self, body_name: str, owner: str | Path) -> None:
+        """:class:`DatasetError` naming the subject's poses.npz when its body is not ``body_name``, the
+        body of ``owner`` (the avatar or prior file the data meets): one body's poses mean nothing to another."""
+        if self.body_name != body_name:
+            raise DatasetError(
+                f"{self.subjects[0].directory / 'poses.npz'}: poses of the '{self.body_name}' body, "
+                f"and {owner} is of the '{body_name}' body"
+            )
 
     def shape(self, identity: int) -> Tensor:
         return torch.as_tensor(self.subjects[identity].arrays.shape, dtype=torch.float32)

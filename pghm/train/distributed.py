@@ -1,10 +1,12 @@
 """Multi-process training with torch.distributed, started by ``torchrun``.
 
-``torchrun --nproc_per_node N -m pghm.cli.main train-prior ...`` sets RANK, WORLD_SIZE and
-the rendezvous variables; :func:`init` joins the group with gloo on CPU (nccl where GPUs
-exist). Without torchrun everything runs in one process and these functions are no-ops.
-The training objective is wrapped whole in DistributedDataParallel, which averages every
-gradient across processes after backward.
+``torchrun --nproc_per_node N -m pghm.cli.main train-prior ...`` sets RANK, WORLD_SIZE,
+LOCAL_RANK and the rendezvous variables. On the CPU the processes join with gloo; on CUDA
+each process takes the GPU of its LOCAL_RANK (:func:`process_device`) and they join with
+NCCL (:func:`backend_for`). Without torchrun everything runs in one process and these
+functions are no-ops. The training objective is wrapped whole in DistributedDataParallel,
+which averages every gradient across processes after backward. The batch plan, checkpoints
+(written by rank 0, read onto the CPU) and ``--resume`` do not depend on the device.
 """
 
 from __future__ import annotations
@@ -16,17 +18,37 @@ import torch
 import torch.distributed as dist
 from torch import nn
 
+from pghm.errors import PghmError
+
 
 def requested() -> bool:
     """Whether this process was started by torchrun with more than one process."""
     return int(os.environ.get("WORLD_SIZE", "1")) > 1
 
 
-def init() -> None:
-    """Join the process group when started by torchrun (idempotent)."""
+def backend_for(device: torch.device) -> str:
+    """The process-group backend for processes computing on ``device``: NCCL between GPUs, else gloo."""
+    return "nccl" if device.type == "cuda" else "gloo"
+
+
+def process_device(device: torch.device) -> torch.device:
+    """This process's device: under torchrun with CUDA, the GPU of its LOCAL_RANK (one per process;
+    PghmError when there are fewer GPUs than processes on this node); otherwise ``device`` itself."""
+    if device.type != "cuda" or not requested():
+        return device
+    local = int(os.environ.get("LOCAL_RANK", "0"))
+    count = torch.cuda.device_count()
+    if local >= count:
+        raise PghmError(f"process {local} of this node has no GPU of its own ({count} visible); use fewer processes")
+    return torch.device("cuda", local)
+
+
+def init(device: torch.device = torch.device("cpu")) -> None:
+    """Join the process group when started by torchrun (idempotent), for processes on ``device``."""
     if requested() and not dist.is_initialized():
-        backend = "nccl" if torch.cuda.is_available() else "gloo"
-        dist.init_process_group(backend=backend)
+        if device.type == "cuda":
+            torch.cuda.set_device(device)
+        dist.init_process_group(backend=backend_for(device))
 
 
 def world_size() -> int:
@@ -45,7 +67,9 @@ def wrap(module: nn.Module) -> nn.Module:
     """
     if not dist.is_initialized():
         return module
-    return nn.parallel.DistributedDataParallel(module, find_unused_parameters=True)
+    device = next(module.parameters()).device
+    ids = [device] if device.type == "cuda" else None
+    return nn.parallel.DistributedDataParallel(module, device_ids=ids, find_unused_parameters=True)
 
 
 def no_sync(module: nn.Module):

@@ -30,6 +30,7 @@ from torch import Tensor
 
 from pghm.body import load_body
 from pghm.body.pose import BodyPose
+from pghm.device import move
 from pghm.errors import PghmError
 from pghm.io.atomic import atomic_write_bytes
 from pghm.io.avatar import Avatar, avatar_geometry, load_avatar, recorded_path
@@ -110,20 +111,23 @@ def render_images(
     corrections: PoseCorrections | None = None,
 ):
     """Yield (sample, render on black (3, H, W), alpha (H, W)) of the dynamic Gaussians, one image
-    at a time; each sample's pose through ``corrections`` when given."""
+    at a time; each sample's pose through ``corrections`` (on the avatar's device) when given.
+    The model renders on the avatar's device; samples and images are on the CPU."""
+    device = avatar.device
     evaluator = CachedEvaluator(avatar.model.eval(), avatar_geometry(avatar, body_model_path=body_model_path))
     identity = avatar.identity_map()
     for index in indices:
         sample = data.load(0, index)
-        rotations, translation = sample.rotations[None], sample.translation[None]
+        rotations, translation = move(sample.rotations[None], device), move(sample.translation[None], device)
         if corrections is not None:
             with torch.no_grad():
-                rotations, translation = corrections(torch.tensor([sample.frame_key]), rotations, translation)
+                frame = torch.tensor([sample.frame_key], device=device)
+                rotations, translation = corrections(frame, rotations, translation)
         pose = BodyPose(rotations, translation)
-        g = evaluator.evaluate(identity, pose, sample.camera.centre.float()).dynamic
+        g = evaluator.evaluate(identity, pose, move(sample.camera.centre.float(), device)).dynamic
         with torch.no_grad():
             drawn = render(g.means[0], g.scales[0], g.colors[0], g.opacities[0], sample.camera, background=BLACK)
-        yield sample, drawn.rgb.permute(2, 0, 1), drawn.alpha
+        yield sample, drawn.rgb.permute(2, 0, 1).cpu(), drawn.alpha.cpu()
 
 
 def on_background(sample: Sample, rgb_on_black: Tensor, alpha: Tensor, background: tuple[float, float, float]):
@@ -147,6 +151,7 @@ def evaluate(
     background: tuple[float, float, float] = WHITE,
     refine_poses: int = 0,
     fit_poses: bool = False,
+    device: torch.device | str = "cpu",
 ) -> EvalResult:
     """Metrics of ``avatar`` on the ``split`` images of the subject; optional JSON and PNG outputs.
 
@@ -160,9 +165,10 @@ def evaluate(
         fit_poses: render with the avatar's pose track (:mod:`pghm.train.pose_track`): the
             corrections its fit learned on the training frames, interpolated onto the held-out
             frames between them (no held-out image is looked at).
+        device: where the avatar renders (and its poses are refined); metrics are computed on the CPU.
     """
     background = tuple(float(c) for c in background)
-    avatar = avatar if isinstance(avatar, Avatar) else load_avatar(avatar)
+    avatar = (avatar if isinstance(avatar, Avatar) else load_avatar(avatar)).to(device)
     if avatar.kind != "avatar":
         raise PghmError("eval needs a personalised avatar (from pghm fit), not a prior")
     if fit_poses and (refine_poses > 0 or true_poses):
@@ -172,6 +178,7 @@ def evaluate(
             "the avatar holds no pose track (fitted with --no-pose-refinement or --pose-smoothing, or by an older pghm)"
         )
     data = TrainingData(subject_dir, split=split, true_poses=true_poses)
+    data.check_body(avatar.body_name, "the avatar")
     if data.num_identities != 1:
         names = ", ".join(subject.directory.name for subject in data.subjects[:5])
         more = ", ..." if data.num_identities > 5 else ""
@@ -189,6 +196,7 @@ def evaluate(
     corrections, refine_seconds, poses = None, 0.0, "exact (synthetic)" if true_poses else "as stored"
     if fit_poses:
         corrections, counts = track_corrections(avatar.pose_track, data, load_body(data.body_name, body_model_path))
+        corrections = corrections.to(avatar.device)
         poses = "the fit's pose track ({trained} frames trained on, {interpolated} interpolated, {stored} as stored)"
         poses = poses.format(**counts)
     if refine_poses > 0:

@@ -11,6 +11,7 @@ Then, for poses stated noisier than the synthetic data's (a capture) whose frame
 too rarely, the track is settled: every training frame's correction refined against its image
 with the avatar frozen (:mod:`pghm.train.pose_refine`; :func:`track_steps`).
 Both stages train on crops around the person (:mod:`pghm.train.person_crop`).
+Last, when ``detail`` has steps, a detail layer trains on the frozen avatar (:mod:`pghm.train.detail`).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from pghm.device import move
 from pghm.errors import PghmError
 from pghm.io.avatar import Avatar, load_avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig
@@ -30,6 +32,7 @@ from pghm.model.pghm import COMPONENTS
 from pghm.train import profile
 from pghm.train.background import TRAINING_BACKGROUND
 from pghm.train.data import ESTIMATOR_ROTATION_SIGMA, TrainingData
+from pghm.train.detail import DETAIL_LR, train_detail
 from pghm.train.loop import (
     AvatarObjective,
     LoopConfig,
@@ -123,6 +126,11 @@ class FitConfig:
     """L of the avatar's UV maps; None: the prior's. Another L carries the prior's weights over
     (:meth:`PGHM.at_resolution`): (L / L_prior)^2 times as many Gaussians, finer detail, longer
     fits and slower viewing (docs/training.md, "Resolution, steps and image size")."""
+    detail: LoopConfig = field(default_factory=lambda: _fit_stage(0))
+    """The detail stage (:mod:`pghm.train.detail`); 0 steps: no detail layer, the paper's model
+    (docs/training.md, "Detail layer")."""
+    detail_lr: float = DETAIL_LR
+    """Adam learning rate of the detail layer's residuals."""
     split: str = "train"
     """The subject's split the avatar is fitted on (:data:`pghm.subject.ALL_SPLIT`: every
     image, as ``pghm capture --polish`` does to align the held-out frames' poses)."""
@@ -135,6 +143,30 @@ class FitConfig:
     full frame's (:mod:`pghm.train.person_crop`); None: whole frames."""
     lpips: bool = True
     body_model_path: str | None = None
+
+
+GPU_CANDIDATE_RESOLUTION = 256
+"""UV side L of :func:`gpu_fit_candidate`."""
+GPU_CANDIDATE_STEPS = (200, 2000)
+"""Stage 1 and stage 2 steps of :func:`gpu_fit_candidate`."""
+GPU_CANDIDATE_IMAGES = 4
+"""Images per step of :func:`gpu_fit_candidate`."""
+
+
+def gpu_fit_candidate() -> FitConfig:
+    """A fit sized for one GPU and about two minutes, NOT MEASURED: no command uses it by default.
+
+    The CPU defaults (:class:`FitConfig`) stay every command's defaults on every device.
+    ``benchmarks/bench_gpu.py`` fits with this configuration on a CUDA device and scores it
+    against the CPU default fit, with steps per second at L = 128, 256 and 512; until it has
+    run on a GPU these numbers are a guess from the U-Net's step time on one GPU (about 20 ms),
+    not a tuned choice.
+    """
+    config = FitConfig(uv_resolution=GPU_CANDIDATE_RESOLUTION)
+    for name, steps in zip(("stage1", "stage2"), GPU_CANDIDATE_STEPS):
+        stage = replace(getattr(config, name), steps=steps, images_per_shard=GPU_CANDIDATE_IMAGES)
+        setattr(config, name, stage)
+    return config
 
 
 def pose_learning_rate(rotation_sigma: float) -> float:
@@ -162,11 +194,12 @@ def track_steps(rotation_sigma: float, visits: float) -> int:
 
 
 def initial_latent(model: PGHM) -> torch.Tensor:
-    """(1, C, L, L): the decoded mean of the bank's latents (a fresh latent for an empty bank)."""
+    """(1, C, L, L) on the model's device: the decoded mean of the bank's latents (a fresh latent
+    for an empty bank)."""
     with torch.no_grad():
         if model.num_identities == 0:
             size = model.config.uv_resolution
-            return torch.zeros(1, model.config.latent_channels, size, size)
+            return torch.zeros(1, model.config.latent_channels, size, size, device=model.identity_bank.device)
         return model.decode_latent(model.identity_bank.mean(0, keepdim=True))
 
 
@@ -178,6 +211,8 @@ def _checkpoint_stage(payload: dict, path: Path) -> int:
     """The stage (1 or 2) a fit checkpoint was saved in; PghmError for another command's checkpoint."""
     extra = payload.get("extra")
     stage = extra.get("stage") if isinstance(extra, dict) else None
+    if stage == 3:
+        raise PghmError(f"{path}: a checkpoint of the detail stage, which does not resume; run the fit again")
     if type(stage) is not int or stage not in (1, 2):
         raise PghmError(f"{path}: not a checkpoint of pghm fit (from train-prior?); cannot --resume from it")
     return stage
@@ -189,20 +224,24 @@ def fit(
     out: str | Path,
     config: FitConfig | None = None,
     resume: bool = False,
+    device: torch.device | str = "cpu",
 ) -> Avatar:
     """Personalise ``prior`` to the subject in ``subject_dir`` and save the avatar to ``out``.
 
     Args:
         prior: a prior file or loaded prior; or a :class:`ModelConfig` to train the same
             model from scratch (random network, latent from zero) for comparison.
+        device: where the model, data and optimiser live; the avatar is written from the CPU.
     """
+    device = torch.device(device)
     config = config or FitConfig()
     if config.track_steps is not None and config.track_steps < 0:
         raise PghmError(f"track_steps must be >= 0, got {config.track_steps}")
-    for name in ("latent_lr", "network_lr", "pose_lr"):
+    for name in ("latent_lr", "network_lr", "pose_lr", "detail_lr"):
         if getattr(config, name) is not None:
             check_learning_rate(name, getattr(config, name))
     out = Path(out)
+    ckpt = checkpoint_path(out, resume)
     data = TrainingData(
         subject_dir, split=config.split, pose_smoothing=config.pose_smoothing, crop_margin=config.crop_margin
     )
@@ -216,6 +255,7 @@ def fit(
         config = replace(config, track_steps=track_steps(data.pose_noise[0][0], visits))
     check_step_memory(data, config.stage1, "fit stage 1")
     check_step_memory(data, config.stage2, "fit stage 2")
+    check_step_memory(data, config.detail, "fit detail stage")
     if isinstance(prior, ModelConfig):
         torch.manual_seed(config.stage1.seed)
         if config.uv_resolution is not None:
@@ -225,23 +265,20 @@ def fit(
         prior_avatar = prior if isinstance(prior, Avatar) else load_avatar(prior)
         if prior_avatar.kind != "prior":
             raise PghmError(f"{prior}: is a personalised avatar, not a prior (pghm train-prior); fit needs a prior")
-        if data.body_name != prior_avatar.body_name:
-            raise PghmError(f"the subject uses the '{data.body_name}' body, the prior '{prior_avatar.body_name}'")
+        data.check_body(prior_avatar.body_name, prior if not isinstance(prior, Avatar) else "the prior")
         model = prior_avatar.model
         if config.uv_resolution not in (None, model.config.uv_resolution):
             model = model.at_resolution(config.uv_resolution)
         prior_source = recorded_path(prior) if not isinstance(prior, Avatar) else "(in memory)"
+    model = model.to(device)
     model.train()
     for p in model.parameters():
         p.requires_grad_(False)
-    geometries = GeometryCache(data, model.config, config.body_model_path)
+    geometries = GeometryCache(data, model.config, config.body_model_path, device)
     latent = nn.Parameter(initial_latent(model))
-    corrections = data.pose_corrections(geometries.body) if config.refine_poses else None
-    lpips, lpips_line = lpips_for(config.lpips)
+    corrections = data.pose_corrections(geometries.body).to(device) if config.refine_poses else None
+    lpips, lpips_line = lpips_for(config.lpips, device)
     objective = AvatarObjective(model, latent, corrections, config.stage1.loss, lpips)
-    ckpt = checkpoint_path(out)
-    if resume and not ckpt.is_file():
-        raise PghmError(f"--resume: no checkpoint {ckpt} to continue from")
     payload = load_checkpoint(ckpt) if resume else None
     start_stage = _checkpoint_stage(payload, ckpt) if payload else 1
 
@@ -332,7 +369,22 @@ def fit(
                     hold_appearance=config.hold_appearance,
                 )
             avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
-        avatar.pose_track = learned_track(corrections, data)
+        avatar.pose_track = move(learned_track(corrections, data), torch.device("cpu"))  # a record, as in the file
+    if config.detail.steps:
+        with profile.phase("detail"):
+            avatar.model, detail = train_detail(
+                model,
+                avatar.latent,
+                corrections,
+                data,
+                config.detail,
+                config.detail_lr,
+                lpips,
+                ckpt,
+                config.body_model_path,
+            )
+        avatar.metadata["steps"]["detail"] = detail.step
+        avatar.metadata["detail_seconds"] = round(detail.seconds, 1)
     with profile.phase("save"):
         save_avatar(out, avatar)
     ckpt.unlink(missing_ok=True)  # the avatar holds the result; a stale checkpoint would only mislead --resume

@@ -28,7 +28,9 @@ import torch
 from torch import Tensor, nn
 from tqdm import tqdm
 
+from pghm._fault_injection import interrupt_point
 from pghm.body.pose import BodyPose
+from pghm.device import move
 from pghm.errors import DatasetError, PghmError
 from pghm.io.atomic import atomic_write_bytes
 from pghm.io.torch_file import TorchFileError, load_torch_file
@@ -122,6 +124,11 @@ class AvatarObjective(nn.Module):
         self.weights = weights
         self.lpips = lpips
 
+    @property
+    def device(self) -> torch.device:
+        """Where the model lives: the step's samples, backgrounds and indices are made there."""
+        return self.model.identity_bank.device
+
     def identity_map(self, identity: int) -> Tensor:
         return self.latent if self.latent is not None else self.model.decode_identity(identity)
 
@@ -144,8 +151,10 @@ class AvatarObjective(nn.Module):
             rotations = torch.stack([samples[i].rotations for i in first])
             translation = torch.stack([samples[i].translation for i in first])
             if self.corrections is not None:
-                rotations, translation = self.corrections(torch.tensor(unique), rotations, translation)
-            pose_index = torch.tensor([unique.index(k) for k in keys])
+                rotations, translation = self.corrections(
+                    torch.tensor(unique, device=self.device), rotations, translation
+                )
+            pose_index = torch.tensor([unique.index(k) for k in keys], device=self.device)
             centres = torch.stack([s.camera.centre.float() for s in samples])
             out = self.avatar(samples[0].identity, geometry, BodyPose(rotations, translation), centres, pose_index)
         # Both sets of all B views in one batched render: (2B, H, W, 3).
@@ -183,7 +192,9 @@ class AvatarObjective(nn.Module):
         self, samples: list[Sample], geometry: SubjectGeometry, backgrounds: Tensor | None = None
     ) -> tuple[Tensor, dict[str, float]]:
         """The loss of one identity's samples and its terms; with ``backgrounds`` (B, 3, H, W),
-        targets and renders are composited on them (see :mod:`pghm.train.background`)."""
+        targets and renders are composited on them (see :mod:`pghm.train.background`). Samples and
+        backgrounds are moved to the model's device (loaded on the CPU, they are read there once)."""
+        samples, backgrounds = [move(s, self.device) for s in samples], move(backgrounds, self.device)
         static, dynamic, static_alpha, dynamic_alpha, regularizer = self.renders(samples, geometry, backgrounds)
         with profile.part(profile.DATA):
             target = torch.stack([s.image for s in samples])
@@ -206,7 +217,7 @@ class AvatarObjective(nn.Module):
     ) -> tuple[Tensor, dict[str, float]]:
         """The loss of renders (B, 3, H, W) and alphas (B, 1, H, W) against targets and masks, and its
         terms; those of the full frames when the samples are crops."""
-        area = area_tensor([s.crop for s in samples]) if any(s.crop for s in samples) else None
+        area = area_tensor([s.crop for s in samples]).to(static.device) if any(s.crop for s in samples) else None
         share = area[:, 0] if area is not None else None
         loss, terms = objective(static, dynamic, target, regularizer, self.weights, self.lpips, area)
         if self.weights.silhouette > 0:
@@ -214,7 +225,7 @@ class AvatarObjective(nn.Module):
             loss = loss + self.weights.silhouette * (sil_s + sil_d)
             terms.update(sil_s=float(sil_s.detach()), sil_d=float(sil_d.detach()), loss=float(loss.detach()))
         if self.corrections is not None and self.weights.pose_prior > 0:
-            prior = self.corrections.prior(torch.tensor(distinct_frames(samples)))
+            prior = self.corrections.prior(torch.tensor(distinct_frames(samples), device=self.device))
             loss = loss + self.weights.pose_prior * prior
             terms["pose_prior"] = float(prior.detach())
             terms["loss"] = float(loss.detach())
@@ -472,6 +483,7 @@ def run_stage(
                 state.bad_images = sorted(data.bad)
                 with profile.part(profile.CHECKPOINT):
                     save_checkpoint(checkpoint, objective, optimizer, state, extra)
+            interrupt_point("train-step")
     except KeyboardInterrupt:
         if rank == 0:
             state.bad_images = sorted(data.bad)

@@ -45,6 +45,14 @@ class LazyAdam(torch.optim.Optimizer):
     ) -> None:
         super().__init__(params, {"lr": lr, "betas": betas, "eps": eps, "lazy": False})
 
+    def load_state_dict(self, state_dict: dict) -> None:
+        """As torch's, with each parameter's step counts on its device: torch moves the moments to
+        the parameter's device but leaves "step" where the checkpoint held it (the CPU)."""
+        super().load_state_dict(state_dict)
+        for parameter, state in self.state.items():
+            if "step" in state:
+                state["step"] = state["step"].to(parameter.device)
+
     @torch.no_grad()
     def step(self, closure=None) -> None:
         if closure is not None:
@@ -57,7 +65,7 @@ class LazyAdam(torch.optim.Optimizer):
                 if not state:
                     state["exp_avg"] = torch.zeros_like(p)
                     state["exp_avg_sq"] = torch.zeros_like(p)
-                    state["step"] = torch.zeros(p.shape[0] if group["lazy"] else 1, dtype=torch.float64)
+                    state["step"] = torch.zeros(p.shape[0] if group["lazy"] else 1, dtype=torch.float64, device=p.device)
                 if group["lazy"]:
                     _lazy_update(p, state, group)
                 else:

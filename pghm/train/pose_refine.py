@@ -107,7 +107,7 @@ def refine_poses(
     """
     body = load_body(avatar.body_name, body_model_path)
     geometry = avatar_geometry(avatar, body_model_path=body_model_path)
-    corrections = data.pose_corrections(body) if corrections is None else corrections
+    corrections = data.pose_corrections(body).to(avatar.device) if corrections is None else corrections
     corrections.requires_grad_(True)
     model = avatar.model.eval()
     frozen = [p for p in model.parameters() if p.requires_grad]

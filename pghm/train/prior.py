@@ -13,7 +13,6 @@ from pathlib import Path
 
 import torch
 
-from pghm.errors import PghmError
 from pghm.io.avatar import Avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig
 from pghm.train import distributed
@@ -69,26 +68,37 @@ class PriorConfig:
 
 def initial_model(model: ModelConfig, num_identities: int, seed: int) -> PGHM:
     """The prior's network and identity bank before its first step (what step 0 of
-    :func:`train_prior` starts from for ``PriorConfig(model=model, loop=LoopConfig(seed=seed))``)."""
+    :func:`train_prior` starts from for ``PriorConfig(model=model, loop=LoopConfig(seed=seed))``).
+    Drawn on the CPU whatever the device, so a seed gives the same start everywhere."""
     torch.manual_seed(seed)
     return PGHM(model, num_identities=num_identities)
 
 
 def train_prior(
-    data_dir: str | Path, out: str | Path, config: PriorConfig | None = None, resume: bool = False
+    data_dir: str | Path,
+    out: str | Path,
+    config: PriorConfig | None = None,
+    resume: bool = False,
+    device: torch.device | str = "cpu",
 ) -> Avatar:
-    """Train a prior on the subjects in ``data_dir`` and save it to ``out`` (default config: PriorConfig())."""
+    """Train a prior on the subjects in ``data_dir`` and save it to ``out`` (default config: PriorConfig()).
+
+    Computes on ``device``; under torchrun with CUDA, each process on its own GPU
+    (:func:`pghm.train.distributed.process_device`). The file is written from the CPU.
+    """
     config = config or PriorConfig()
     for name in ("network_lr", "latent_lr", "pose_lr"):
         check_learning_rate(name, getattr(config, name))
-    distributed.init()
+    device = distributed.process_device(torch.device(device))
+    distributed.init(device)
     out = Path(out)
+    ckpt = checkpoint_path(out, resume)
     data = TrainingData(data_dir, max_identities=config.max_identities)
     check_step_memory(data, config.loop, "train-prior")
-    geometries = GeometryCache(data, config.model, config.body_model_path)
-    model = initial_model(config.model, data.num_identities, config.loop.seed)
-    corrections = data.pose_corrections(geometries.body) if config.refine_poses else None
-    lpips, lpips_line = lpips_for(config.lpips)
+    geometries = GeometryCache(data, config.model, config.body_model_path, device)
+    model = initial_model(config.model, data.num_identities, config.loop.seed).to(device)
+    corrections = data.pose_corrections(geometries.body).to(device) if config.refine_poses else None
+    lpips, lpips_line = lpips_for(config.lpips, device)
     objective = AvatarObjective(model, None, corrections, config.loop.loss, lpips)
     bank = [model.identity_bank]
     network = [p for name, p in model.named_parameters() if name != "identity_bank"]
@@ -103,10 +113,7 @@ def train_prior(
     trainable = [p for group in groups for p in group["params"]]
 
     state = LoopState()
-    ckpt = checkpoint_path(out)
     if resume:
-        if not ckpt.is_file():
-            raise PghmError(f"--resume: no checkpoint {ckpt} to continue from")
         state = restore(load_checkpoint(ckpt), objective, optimizer)
         log.info("resuming from %s at step %d", ckpt, state.step)
     state = run_stage(

@@ -8,10 +8,14 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Protocol
 
+import torch
+
 from pghm.body import load_body
+from pghm.device import move
+from pghm.errors import PghmError
 from pghm.io.avatar import recorded_path
 from pghm.model import ModelConfig, subject_geometry
-from pghm.model.geometry import SubjectGeometry
+from pghm.model.geometry import SubjectGeometry, detail_atlas
 from pghm.train.data import TrainingData
 from pghm.train.lpips import load_lpips, lpips_status
 from pghm.uv.atlas import build_atlas
@@ -25,22 +29,35 @@ class TrainingConfig(Protocol):
     body_model_path: str | None
 
 
-def checkpoint_path(out: Path) -> Path:
-    return out.with_name(out.name + ".ckpt")
+def checkpoint_path(out: Path, resume: bool = False) -> Path:
+    """OUT.ckpt; with ``resume``, :class:`PghmError` unless it exists (asked before any data is read)."""
+    ckpt = out.with_name(out.name + ".ckpt")
+    if resume and not ckpt.is_file():
+        raise PghmError(f"--resume: no checkpoint {ckpt} to continue from")
+    return ckpt
 
 
 class GeometryCache:
-    """Each identity's :class:`SubjectGeometry`, built on first use."""
+    """Each identity's :class:`SubjectGeometry` on ``device``, built on first use."""
 
-    def __init__(self, data: TrainingData, config: ModelConfig, body_model_path: str | None) -> None:
+    def __init__(
+        self,
+        data: TrainingData,
+        config: ModelConfig,
+        body_model_path: str | None,
+        device: torch.device | str = "cpu",
+    ) -> None:
         self.body = load_body(data.body_name, body_model_path)
         self.atlas = build_atlas(self.body, config.uv_resolution)
+        self.detail_atlas = detail_atlas(self.body, config)
         self.data = data
+        self.device = device
         self._cache: dict[int, SubjectGeometry] = {}
 
     def __call__(self, identity: int) -> SubjectGeometry:
         if identity not in self._cache:
-            self._cache[identity] = subject_geometry(self.body, self.atlas, self.data.shape(identity))
+            geometry = subject_geometry(self.body, self.atlas, self.data.shape(identity), self.detail_atlas)
+            self._cache[identity] = move(geometry, self.device)
         return self._cache[identity]
 
 
@@ -52,11 +69,13 @@ def config_record(config: TrainingConfig) -> dict:
     return record
 
 
-def lpips_for(enabled: bool):
-    """(the LPIPS network or None, a status line for the metadata, naming files without their directories)."""
+def lpips_for(enabled: bool, device: torch.device | str = "cpu"):
+    """(the LPIPS network on ``device`` or None, a status line for the metadata, naming files without
+    their directories)."""
     if not enabled:
         return None, "LPIPS off: disabled by configuration"
     network = load_lpips()
     if network is None:
         log.warning("%s; the LPIPS loss term is dropped", lpips_status())
-    return network, lpips_status(directories=False)
+        return None, lpips_status(directories=False)
+    return network.to(device), lpips_status(directories=False)

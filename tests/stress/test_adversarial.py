@@ -23,6 +23,7 @@ import argparse
 import contextlib
 import hashlib
 import io
+import json
 import shutil
 import signal
 from pathlib import Path
@@ -150,11 +151,15 @@ def run_in_process(argv: list[str]):
 
 
 def snapshot(folder: Path) -> dict[str, str]:
-    """Every file under ``folder`` (hidden ones included) -> sha256 of its bytes ('dir' for folders)."""
+    """Every file under ``folder`` (hidden ones included) -> sha256 of its bytes ('dir' for folders,
+    the target for symlinks)."""
     found = {}
     for path in sorted(folder.rglob("*")):
         key = str(path.relative_to(folder))
-        found[key] = "dir" if path.is_dir() else hashlib.sha256(path.read_bytes()).hexdigest()
+        if path.is_symlink():  # dangling links and loops included
+            found[key] = f"link to {path.readlink()}"
+        else:
+            found[key] = "dir" if path.is_dir() else hashlib.sha256(path.read_bytes()).hexdigest()
     return found
 
 
@@ -285,7 +290,9 @@ def _replace_option(argv: list[str], option: str, value: str) -> list[str]:
     return argv
 
 
-def bad_outputs(output: tuple[str, str], work: Path, an_input: Path | None) -> dict[str, str]:
+def bad_outputs(
+    output: tuple[str, str], work: Path, an_input: Path | None, a_folder: Path | None = None
+) -> dict[str, str]:
     """Bad values for the output ``(command, dest)``: name -> path."""
     afile = work / "afile.txt"
     afile.write_text("a file\n")
@@ -308,6 +315,8 @@ def bad_outputs(output: tuple[str, str], work: Path, an_input: Path | None) -> d
             link.symlink_to(an_input)
         cases["the command's input"] = str(an_input)
         cases["a symlink to the input"] = str(link)
+    if a_folder is not None:
+        cases["inside the input folder"] = str(a_folder / "inside" / "output.png")
     return cases
 
 
@@ -323,8 +332,9 @@ def test_output_refused_before_work(path, dest, world, tmp_path):
         argv = ["bench", "stress", "--fuzz-seconds", "0"]
     option = f"--{dest}"
     an_input = next((Path(a) for a in argv[len(path) :] if Path(a).is_file()), None)
+    a_folder = next((Path(a) for a in argv[len(path) :] if Path(a).is_dir()), None)
     failures, passed = [], 0
-    for name, value in bad_outputs((path[0], dest), tmp_path, an_input).items():
+    for name, value in bad_outputs((path[0], dest), tmp_path, an_input, a_folder).items():
         inputs = _fingerprint(world)
         before = snapshot(tmp_path)
         result = cli(*_replace_option(argv, option, value), cwd=tmp_path)
@@ -336,7 +346,8 @@ def test_output_refused_before_work(path, dest, world, tmp_path):
             failures.append(f"{name}: {observed}" + ("" if unchanged else "; AN INPUT CHANGED"))
     check(
         "adversarial: outputs",
-        f"pghm {' '.join(path)} {option}: unwritable, folder/file, under a file, /dev/full, the input, a symlink to it",
+        f"pghm {' '.join(path)} {option}: unwritable, folder/file, under a file, /dev/full, the input, a symlink "
+        "to it, inside an input folder",
         "exit 2 before any work, one line naming the option, nothing written, inputs unchanged",
         "; ".join(failures)[:300] if failures else f"{passed} bad outputs refused",
         not failures,
@@ -456,20 +467,27 @@ def file_cases(world: dict, work: Path) -> dict[str, tuple[list[str], str]]:
     return cases
 
 
-def test_bad_file_contents_are_refused_at_the_loader(world, tmp_path):
+def refuse_each(area, cases: dict[str, tuple[list[str], str]], world: dict, tmp_path: Path) -> None:
+    """Run every case (name -> (argv, words)): exit 2, one line holding its words, nothing written under
+    ``tmp_path``/work, every input unchanged. ``area`` is the report's section, or a function of the name."""
     work = tmp_path / "work"
-    work.mkdir()
-    for name, (argv, words) in file_cases(world, work).items():
+    for name, (argv, words) in cases.items():
+        inputs = _fingerprint(world)
         before = snapshot(work)
         result = cli(*argv, cwd=tmp_path)
         ok, observed = holds_contract(result, before, snapshot(work))
         check(
-            "adversarial: file contents",
+            area(name) if callable(area) else area,
             name,
-            f"exit 2, one line naming the file and '{words}', nothing written",
+            f"exit 2, one line with '{words}', nothing written, inputs unchanged",
             observed,
-            ok and words in result.stderr,
+            ok and words in result.stderr and inputs == _fingerprint(world),
         )
+
+
+def test_bad_file_contents_are_refused_at_the_loader(world, tmp_path):
+    (tmp_path / "work").mkdir()
+    refuse_each("adversarial: file contents", file_cases(world, tmp_path / "work"), world, tmp_path)
 
 
 def test_data_check_lists_bad_values_and_truncated_pngs(world, tmp_path):
@@ -612,28 +630,35 @@ def test_checkpoint_is_gone_after_success_and_prior_kinds(world, tiny_dataset, t
         check("adversarial: misc", name, f"exit 2, one line with '{words}'", observed, ok and words in result.stderr)
 
 
-# ---------------------------------------------------------------------------------- Ctrl-C
+# ------------------------------------------------------------------------ Ctrl-C and SIGTERM
 
 
-@pytest.mark.parametrize(
-    "point,argv",
-    [
-        ("startup", ["motion", "make", "walk", "--out", "m.npz"]),
-        ("render-frame", ["render", "AVATAR", "--frames", "3", "--out", "frames", "--backend", "cpu", "--size", "8x6"]),
-        ("synth-subjects", ["synth", "--out", "data", "--workers", "1", "--quiet"]),
-    ],
-)
-def test_ctrl_c_leaves_nothing(point, argv, world, tmp_path):
+INTERRUPTED_RUNS = [
+    ("startup", ["motion", "make", "walk", "--out", "m.npz"]),
+    ("render-frame", ["render", "AVATAR", "--frames", "3", "--out", "frames", "--backend", "cpu", "--size", "8x6"]),
+    ("render-frame", ["render", "AVATAR", "--frames", "3", "--out", "v.mp4", "--backend", "cpu", "--size", "8x6"]),
+    ("synth-subjects", ["synth", "--out", "data", "--workers", "1", "--quiet"]),
+]
+"""(test-hook point, command) of the runs interrupted at a chosen moment (pghm/_fault_injection.py)."""
+SIGNALS = {"SIGINT": ("Ctrl-C", "interrupted"), "SIGTERM": ("SIGTERM", "terminated")}
+"""Signal -> (report area, the one line's word): SIGTERM must unwind as Ctrl-C does."""
+
+
+@pytest.mark.parametrize("signal_name", list(SIGNALS))
+@pytest.mark.parametrize("point,argv", INTERRUPTED_RUNS)
+def test_interrupt_leaves_nothing(signal_name, point, argv, world, tmp_path):
+    area, word = SIGNALS[signal_name]
     argv = [str(world["avatar"]) if a == "AVATAR" else a for a in argv]
-    result = cli(*argv, cwd=tmp_path, env={TEST_INTERRUPT_VARIABLE: point})
+    result = cli(*argv, cwd=tmp_path, env={TEST_INTERRUPT_VARIABLE: f"{point}:{signal_name}"})
     lines = [line for line in result.error_lines if "Loading cached" not in line]
     left = sorted(p.name for p in tmp_path.iterdir())
+    code = 128 + signal.Signals[signal_name]
     check(
-        "adversarial: Ctrl-C",
-        f"SIGINT at '{point}' (test hook): pghm {' '.join(argv[:2])} ...",
-        "exit 130, one line 'pghm: interrupted', no traceback, no file or folder left (staged outputs removed)",
+        f"adversarial: {area}",
+        f"{signal_name} at '{point}' (test hook): pghm {' '.join(argv[:2])} ... {argv[argv.index('--out') + 1]}",
+        f"exit {code}, one line 'pghm: {word}', no traceback, no file or folder left (staged outputs removed)",
         f"exit {result.code}: {' | '.join(lines)[-160:]}; left: {left or 'nothing'}",
-        result.code == 128 + signal.SIGINT and lines == ["pghm: interrupted"] and not left,
+        result.code == code and lines == [f"pghm: {word}"] and not left,
     )
 
 
@@ -658,4 +683,354 @@ def test_viewer_options_refused_before_a_window(world):
         "exit 2, one line 'pghm-view: error: ...', before any window",
         "; ".join(failures) if failures else f"{len(ranged)} option(s) refused every bad value",
         ranged and not failures,
+    )
+
+
+# ------------------------------------------------------------------- the classes of bad input
+
+
+def _png_folder(folder: Path, count: int = 3) -> Path:
+    from PIL import Image
+
+    folder.mkdir(parents=True)
+    for index in range(count):
+        Image.fromarray(np.full((32, 48, 3), 40 * index, np.uint8)).save(folder / f"{index:03d}.png")
+    return folder
+
+
+def _avatar_with_shape(world: dict, path: Path, value: float) -> Path:
+    import torch
+
+    payload = torch.load(world["avatar"], weights_only=True)
+    payload["body"]["shape"][0] = value
+    torch.save(payload, path)
+    return path
+
+
+def _rewrite_subject(world: dict, folder: Path, change) -> Path:
+    """A copy of the subject with ``change(folder)`` applied to its files."""
+    folder = Path(shutil.copytree(world["subject"], folder))
+    change(folder)
+    return folder
+
+
+def _set_poses(folder: Path, **values) -> None:
+    with np.load(folder / "poses.npz", allow_pickle=False) as data:
+        poses = {key: data[key].copy() for key in data.files}
+    for key, value in values.items():
+        poses[key] = np.asarray(value, poses[key].dtype) if key != "body" else np.str_(value)
+    (folder / "poses.npz").write_bytes(npz_bytes(poses))
+
+
+def _empty_train(folder: Path) -> None:
+    splits = json.loads((folder / "splits.json").read_text())
+    (folder / "splits.json").write_text(json.dumps({"train": [], "test": splits["test"]}))
+
+
+def _set_camera(folder: Path, key: str, index: tuple, value: float) -> None:
+    with np.load(folder / "cameras.npz", allow_pickle=False) as data:
+        cameras = {key: data[key].copy() for key in data.files}
+    cameras[key][index] = value
+    (folder / "cameras.npz").write_bytes(npz_bytes(cameras))
+
+
+def _break_two_images(folder: Path) -> None:
+    """The first two training images: a dangling link and a corrupt PNG."""
+    first, second = json.loads((folder / "splits.json").read_text())["train"][:2]
+    dangling = folder / "images" / f"{first:06d}.png"
+    dangling.unlink()
+    dangling.symlink_to(folder / "nowhere.png")
+    (folder / "images" / f"{second:06d}.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 40)
+
+
+def leak_cases(world: dict, work: Path) -> dict[str, tuple[list[str], str]]:
+    """One row per class of the leaks closed by mechanism: name -> (argv, words the one error line must contain)."""
+    a, video = str(world["avatar"]), str(world["video"])
+    frames = _png_folder(work / "frames")
+    damaged = _png_folder(work / "damaged_frames")
+    (damaged / "005.png").symlink_to(work / "nowhere.png")
+    (damaged / "006.png").symlink_to(damaged / "006.png")
+    (damaged / "007.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 40)
+    (damaged / "notes.txt").write_text("not an image, not read\n")
+    smplx = _rewrite_subject(world, work / "smplx_subject", lambda f: _set_poses(f, body="smplx"))
+    bare = _rewrite_subject(world, work / "no_cameras", lambda f: (f / "cameras.npz").unlink())
+    broken = _rewrite_subject(world, work / "broken_images", _break_two_images)
+    return {
+        "physical range: capture --focal 1e-300 (a 180-degree field of view on 32x32 frames)": (
+            ["capture", video, "--out", str(work / "S"), "--focal", "1e-300", "--quiet"],
+            "field of view of 180 degrees",
+        ),
+        "physical range: capture --focal 1e6 (a 0.002-degree field of view on 32x32 frames)": (
+            ["capture", video, "--out", str(work / "S"), "--focal", "1e6", "--quiet"],
+            "1 to 179 degrees",
+        ),
+        "output inside an input: capture FRAMES --out FRAMES/subject": (
+            ["capture", str(frames), "--out", str(frames / "subject"), "--quiet"],
+            "inside the input folder",
+        ),
+        "unreadable inputs: a frame folder with a dangling link, a link loop and a corrupt PNG": (
+            ["capture", str(damaged), "--out", str(work / "S"), "--quiet"],
+            "3 of its 6 image file(s) cannot be read (005.png, 006.png, 007.png)",
+        ),
+        "unreadable inputs: fit on a subject with a dangling image link and a corrupt PNG": (
+            ["fit", str(broken), "--prior", "scratch", "--out", str(work / "a.pt"), "--no-lpips"],
+            "2 file(s) of its 'train' images and masks cannot be opened",
+        ),
+        "value outside its domain: export of an avatar whose body.shape holds 1e6 (phenotypes: [0, 1])": (
+            ["export", str(_avatar_with_shape(world, work / "tall.pt", 1e6)), "--out", str(work / "x.ply")],
+            "'body.shape' holds 1e+06",
+        ),
+        "value outside its domain: render of an avatar whose body.shape holds -0.5": (
+            ["render", str(_avatar_with_shape(world, work / "short.pt", -0.5)), "--out", str(work / "v.png")],
+            "lie in [0, 1]",
+        ),
+        "checks that agree: eval of an anny avatar on a subject of the smplx body": (
+            ["eval", a, str(smplx), "--report", str(work / "r.json"), "--strip", str(work / "r.png")],
+            "poses of the 'smplx' body",
+        ),
+        "the file at fault: fit on a subject without cameras.npz": (
+            ["fit", str(bare), "--prior", "scratch", "--out", str(work / "a.pt"), "--no-lpips"],
+            "cameras.npz: missing",
+        ),
+        "cheap refusal first: render --size 1x1 to an MP4, of a corrupt avatar file (the size is refused first)": (
+            ["render", str(_empty(work, "corrupt.pt")), "--size", "1x1", "--out", str(work / "v.mp4")],
+            "even width and height",
+        ),
+    }
+
+
+def test_each_leak_class_is_closed(world, tmp_path):
+    (tmp_path / "work").mkdir()
+    refuse_each("adversarial: leak classes", leak_cases(world, tmp_path / "work"), world, tmp_path)
+
+
+SUBJECT_DAMAGE = {
+    "an empty train split": (_empty_train, "splits.json: split 'train' is empty"),
+    "an anny body shape of 2.0 (phenotypes: [0, 1])": (
+        lambda folder: _set_poses(folder, shape=np.full(6, 2.0)),
+        "poses.npz: 'shape' holds 2",
+    ),
+    "a frame_index of -1": (
+        lambda folder: _set_camera(folder, "frame_index", (1,), -1),
+        "'frame_index' must be in 0..999999 for image(s) 1",
+    ),
+    "a focal length of 1e-300 px (a 180-degree field of view)": (
+        lambda folder: _set_camera(folder, "K", (2, 0, 0), 1e-300),
+        "K's focal length is outside a field of view of 1 to 179 degrees for image(s) 2",
+    ),
+    "no cameras.npz": (lambda folder: (folder / "cameras.npz").unlink(), "cameras.npz: missing"),
+}
+"""Damage to a subject -> the problem data check lists and every reader names (one validator)."""
+
+
+@pytest.mark.parametrize("damage", list(SUBJECT_DAMAGE))
+def test_data_check_and_the_readers_run_one_validator(damage, world, tmp_path):
+    change, words = SUBJECT_DAMAGE[damage]
+    subject = _rewrite_subject(world, tmp_path / "subject", change)
+    a = str(world["avatar"])
+    checked = cli("data", "check", subject)
+    readers = {
+        "fit": ["fit", subject, "--prior", "scratch", "--out", tmp_path / "a.pt", "--no-lpips"],
+        "eval": ["eval", a, subject, "--report", tmp_path / "r.json", "--strip", tmp_path / "r.png"],
+        "data sheet": ["data", "sheet", subject, "--out", tmp_path / "sheet.png"],
+    }
+    failures = [] if checked.code == 2 and words in checked.stdout else [f"data check: exit {checked.code}"]
+    for name, argv in readers.items():
+        before = snapshot(tmp_path)
+        ok, observed = holds_contract(cli(*argv, cwd=tmp_path), before, snapshot(tmp_path))
+        if not ok or words not in observed:
+            failures.append(f"{name}: {observed}")
+    check(
+        "adversarial: leak classes",
+        f"a subject with {damage}: data check, fit, eval, data sheet",
+        f"data check lists '{words}' (exit 2); each reader refuses with that line (exit 2, nothing written)",
+        "; ".join(failures) if failures else "all four agree",
+        not failures,
+    )
+
+
+# ---------------------------------------------------------------- commands not attacked before
+
+
+def _synth_config(work: Path, name: str, text: str) -> str:
+    path = work / name
+    path.write_text(text)
+    return str(path)
+
+
+def unattacked_cases(world: dict, work: Path, tiny_dataset: Path) -> dict[str, tuple[list[str], str]]:
+    """name -> (argv, words the one error line must contain), for synth, train-prior, bench, data sheet, motion make."""
+    out = str(work / "out")
+    listing_a_ghost = work / "ghost_dataset"
+    listing_a_ghost.mkdir()
+    (listing_a_ghost / "meta.json").write_text('{"format": "pghm-dataset", "subjects": ["subject_009"]}')
+    empty_dataset = work / "empty_dataset"
+    empty_dataset.mkdir()
+    (empty_dataset / "meta.json").write_text('{"format": "pghm-dataset", "subjects": []}')
+    no_cameras = Path(shutil.copytree(tiny_dataset, work / "dataset_without_cameras"))
+    (no_cameras / "subject_001" / "cameras.npz").unlink()
+    synth = ["synth", "--out", out, "--quiet", "--workers", "1", "--config"]
+    prior = ["train-prior", "--out", str(work / "p.pt"), "--no-lpips", "--steps", "1", "--uv-resolution", "64"]
+    return {
+        "synth: a config of invalid JSON": ([*synth, _synth_config(work, "a.json", "{identities: 2")], "a.json"),
+        "synth: a config that is a list": ([*synth, _synth_config(work, "b.json", "[1, 2]")], "JSON object"),
+        "synth: an unknown field": ([*synth, _synth_config(work, "c.json", '{"idents": 2}')], "unknown field"),
+        "synth: fps Infinity": ([*synth, _synth_config(work, "d.json", '{"fps": Infinity}')], "'fps' must be finite"),
+        "synth: 1e9 identities": ([*synth, _synth_config(work, "e.json", '{"identities": 1e9}')], "1 to 10000"),
+        "synth: camera_distance [1] (one number)": (
+            [*synth, _synth_config(work, "f.json", '{"camera_distance": [1]}')],
+            "two numbers",
+        ),
+        "synth: camera_distance of strings": (
+            [*synth, _synth_config(work, "g.json", '{"camera_distance": ["a", "b"]}')],
+            "two numbers",
+        ),
+        "synth: a camera 1e300 m away": (
+            [*synth, _synth_config(work, "h.json", '{"camera_distance": [1, 1e300]}')],
+            "h.json: camera_distance",
+        ),
+        "synth: width as a string": ([*synth, _synth_config(work, "i.json", '{"width": "64"}')], "must be a number"),
+        "synth: a preset that does not exist": ([*synth, "huge"], "neither a preset"),
+        "train-prior: a data set listing a missing subject": (
+            [*prior[:1], str(listing_a_ghost), *prior[1:]],
+            "subject_009",
+        ),
+        "train-prior: a data set listing no subjects": ([*prior[:1], str(empty_dataset), *prior[1:]], "no subjects"),
+        "train-prior: a data set whose second subject lacks cameras.npz": (
+            [*prior[:1], str(no_cameras), *prior[1:]],
+            "subject_001/cameras.npz: missing",
+        ),
+        "train-prior: --resume without a checkpoint": (
+            [*prior[:1], str(tiny_dataset), *prior[1:], "--resume"],
+            "no checkpoint",
+        ),
+        "bench: an unknown benchmark": (["bench", "nosuch"], "unknown benchmark"),
+        "bench: splat --plot p.txt (refused before the sweep)": (
+            ["bench", "splat", "--out", out, "--plot", str(work / "p.txt"), *TINY_RUN["bench"]],
+            "must end in",
+        ),
+        "data sheet: a folder that is neither a subject nor a data set": (
+            ["data", "sheet", str(listing_a_ghost.parent / "out_of_nothing"), "--out", str(work / "s.png")],
+            "out_of_nothing",
+        ),
+        "data sheet: --out sheet.jpg (a PNG under another name)": (
+            ["data", "sheet", str(world["subject"]), "--out", str(work / "sheet.jpg")],
+            "must end in .png",
+        ),
+        "data sheet: --mono of a missing folder": (
+            ["data", "sheet", str(world["subject"]), "--out", str(work / "s.png"), "--mono", str(work / "gone")],
+            "gone",
+        ),
+        "motion make: --body smplx without its model file": (
+            ["motion", "make", "walk", "--body", "smplx", "--out", str(work / "m.npz")],
+            "--body-model-path",
+        ),
+        "motion make: an unknown name": (["motion", "make", "moonwalk", "--out", str(work / "m.npz")], "moonwalk"),
+    }
+
+
+def test_commands_not_attacked_before(world, tiny_dataset, tmp_path):
+    (tmp_path / "work").mkdir()
+    cases = unattacked_cases(world, tmp_path / "work", tiny_dataset)
+    refuse_each(lambda name: f"adversarial: {name.split(':')[0]}", cases, world, tmp_path)
+
+
+TWO_WRITERS_CONFIG = (
+    '{"identities": 1, "views": 1, "frames": 2, "test_frames": 1, "width": 16, "height": 16, "texture_size": 32}'
+)
+"""The smallest synthetic data set: two synth runs of it race for one output folder."""
+
+
+def test_two_writers_of_one_folder_interleaved(tmp_path):
+    """The mechanism the race below meets, made deterministic: both writers build, the first commits."""
+    from pghm.errors import PghmError
+    from pghm.io.outputs import staged_folder
+
+    out = tmp_path / "data"
+    first, second = staged_folder(out), staged_folder(out)
+    building = [first.__enter__(), second.__enter__()]
+    for k, folder in enumerate(building):
+        (folder / "meta.json").write_text(f"writer {k}\n")
+    first.__exit__(None, None, None)
+    try:
+        second.__exit__(None, None, None)
+        observed = "the second commit was accepted"
+    except PghmError as error:
+        observed = str(error)
+    left = sorted(p.name for p in tmp_path.iterdir())
+    kept = (out / "meta.json").read_text() if (out / "meta.json").is_file() else None
+    check(
+        "adversarial: concurrent writers",
+        "two staged writers of one output folder, interleaved (both build, then both commit)",
+        "the first's folder kept whole; the second refused ('appeared while it was being built'), its staging removed",
+        f"{observed}; kept: {kept!r}; left: {left}",
+        "appeared while it was being built" in observed and kept == "writer 0\n" and left == ["data"],
+    )
+
+
+@pytest.mark.slow
+def test_two_synth_runs_writing_one_output(tmp_path):
+    import threading
+
+    from stress_kit import _Server
+
+    from pghm.subject import check as check_data
+
+    config = _synth_config(tmp_path, "small.json", TWO_WRITERS_CONFIG)
+    argv = ["synth", "--config", config, "--out", str(tmp_path / "data"), "--quiet", "--workers", "1"]
+    servers = [_Server(), _Server()]
+    results = [None, None]
+
+    def run(k: int) -> None:
+        results[k] = servers[k].run(argv, tmp_path, {})
+
+    threads = [threading.Thread(target=run, args=(k,)) for k in range(2)]
+    try:
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+    finally:
+        for server in servers:
+            server.close()
+    codes = sorted(result.code for result in results)
+    loser = next((result for result in results if result.code != 0), None)
+    one_line = loser is not None and one_error_line(loser)[0]
+    left = sorted(p.name for p in tmp_path.iterdir() if p.name not in ("data", "small.json"))
+    problems = check_data(tmp_path / "data") if (tmp_path / "data").is_dir() else ["no output"]
+    check(
+        "adversarial: concurrent writers",
+        "two pghm synth runs started at once on one --out",
+        "one writes a valid data set (exit 0); the other exits 2 in one line; no staging folder left",
+        f"exits {codes}; loser: {one_error_line(loser)[1] if loser else 'none'}; left: {left or 'nothing'}; "
+        f"data check: {len(problems)} problem(s)",
+        codes == [0, 2] and one_line and not left and not problems,
+    )
+
+
+# --------------------------------------------------------------------------------- SIGTERM
+
+
+def test_sigterm_during_fit_leaves_a_resumable_checkpoint(world, tiny_prior, tmp_path):
+    out = tmp_path / "a.pt"
+    argv = [
+        "fit", world["subject"], "--prior", tiny_prior, "--out", out, "--stage1-steps", "2", "--stage2-steps", "1",
+        "--no-lpips", "--checkpoint-every", "1",
+    ]  # fmt: skip
+    stopped = cli(*argv, cwd=tmp_path, env={TEST_INTERRUPT_VARIABLE: "train-step:SIGTERM"})
+    checkpoint = out.with_name(out.name + ".ckpt")
+    after_stop = sorted(p.name for p in tmp_path.iterdir())
+    resumed = cli(*argv, "--resume", cwd=tmp_path)
+    left = sorted(p.name for p in tmp_path.iterdir())
+    last = stopped.error_lines[-1] if stopped.error_lines else ""
+    check(
+        "adversarial: SIGTERM",
+        "SIGTERM after fit's first step (test hook), then pghm fit --resume",
+        "exit 143, last line 'pghm: terminated', only a.pt.ckpt left; the resumed run exits 0, a.pt alone left",
+        f"exit {stopped.code}: {last}; left: {after_stop}; resumed: exit {resumed.code}, left: {left}",
+        stopped.code == 128 + signal.SIGTERM
+        and last == "pghm: terminated"
+        and after_stop == [checkpoint.name]
+        and resumed.code == 0
+        and left == [out.name],
     )

@@ -10,6 +10,7 @@ the network overflow by itself (no injection) must be caught the same way.
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import shutil
@@ -21,6 +22,7 @@ from conftest import TINY_MODEL
 from stress_kit import check, cli, one_error_line
 
 from pghm.model import ModelConfig
+from pghm.subject import image_name
 from pghm.train import loop as loop_module
 from pghm.train.data import TrainingData
 from pghm.train.fit import FitConfig, fit
@@ -342,12 +344,14 @@ def test_every_frame_unreadable_is_one_clear_error(tiny_dataset, tmp_path):
         "train-prior", data_dir, "--out", tmp_path / "p.pt", "--steps", "2", "--uv-resolution", "64", "--no-lpips"
     )
     ok, observed = one_error_line(result)
+    train = json.loads((data_dir / "subject_000" / "splits.json").read_text())["train"]
+    first = f"images/{image_name(train[0])}"
     check(
         AREA,
         "every image of a subject unreadable (pghm train-prior)",
-        "exit 2, one line: none of its images can be read (not a run that silently trains on nothing)",
+        f"exit 2 before any step, one line naming them: {len(train)} file(s) ... cannot be opened ({first}, ...)",
         observed,
-        ok and "none of its" in result.stderr and not (tmp_path / "p.pt").exists(),
+        ok and f"{len(train)} file(s)" in result.stderr and first in result.stderr and not (tmp_path / "p.pt").exists(),
     )
 
 

@@ -1,0 +1,63 @@
+"""Which device a run computes on: the one resolver every command uses.
+
+``--device auto`` (the default) is CUDA when torch sees a CUDA device, else the CPU;
+``--device cuda`` without one is a :class:`PghmError`. The library itself never picks a
+device: its functions compute on the device of their inputs (a model moved with
+``.to(device)``, tensors made there), and files are written from and read onto the CPU,
+so an avatar trained on a GPU opens anywhere.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TypeVar
+
+import torch
+from torch import Tensor
+
+from pghm.errors import PghmError
+
+T = TypeVar("T")
+
+DEVICE_CHOICES: tuple[str, ...] = ("auto", "cpu", "cuda")
+"""Values of ``--device``."""
+
+
+def resolve_device(name: str) -> torch.device:
+    """The device ``name`` ("auto", "cpu", "cuda" or "cuda:K") stands for on this machine.
+
+    Raises PghmError for a CUDA device this machine lacks, or an unknown name.
+    """
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        device = torch.device(name)
+    except (RuntimeError, TypeError):
+        raise PghmError(f"--device must be one of {', '.join(DEVICE_CHOICES)}, got {name!r}") from None
+    if device.type == "cpu":
+        return device
+    if device.type != "cuda":
+        raise PghmError(f"--device must be one of {', '.join(DEVICE_CHOICES)}, got {name!r}")
+    if not torch.cuda.is_available():
+        build = "a CPU-only build of torch" if torch.version.cuda is None else "no CUDA device visible"
+        raise PghmError(f"--device {name}: CUDA is not available here ({build}); use --device cpu")
+    if device.index is not None and device.index >= torch.cuda.device_count():
+        raise PghmError(f"--device {name}: this machine has {torch.cuda.device_count()} CUDA device(s)")
+    return device
+
+
+def move(value: T, device: torch.device) -> T:
+    """``value`` with every tensor in it on ``device``: a tensor, or a (nested) dataclass holding tensors.
+
+    A value already there is returned as it is (the same object), so moving to the device a run
+    already computes on costs nothing and changes nothing.
+    """
+    if isinstance(value, Tensor):
+        return value.to(device)
+    if not dataclasses.is_dataclass(value) or isinstance(value, type):
+        return value
+    fields = [field.name for field in dataclasses.fields(value) if field.init]
+    moved = {name: move(getattr(value, name), device) for name in fields}
+    if all(moved[name] is getattr(value, name) for name in fields):
+        return value
+    return dataclasses.replace(value, **moved)
