@@ -137,8 +137,10 @@ def with_busy_loop(work):
         busy.wait()
 
 
-def full(subject: Path, work: Path, busy: bool) -> dict:
-    run = (lambda: run_fit(subject, work / "full.pt", [], {}))
+def full(subject: Path, work: Path, busy: bool, threads: int | None) -> dict:
+    """The default fit, whole, on ``threads`` threads (None: the thread policy's choice)."""
+    env = {"OMP_NUM_THREADS": str(threads)} if threads else {}
+    run = (lambda: run_fit(subject, work / "full.pt", [], env))
     record = with_busy_loop(run) if busy else run()
     return {"subject": subject.name, "busy_loop": busy, **record}
 
@@ -214,7 +216,9 @@ def main() -> None:
     parser.add_argument("subjects", nargs="+", type=Path)
     parser.add_argument("--steps", nargs=3, type=int, default=[5, 10, 2], metavar=("STAGE1", "STAGE2", "TRACK"))
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--threads", type=int, default=1, help="threads of the breakdown's fits (default 1)")
+    parser.add_argument(
+        "--threads", type=int, default=None, help="threads of the fits (default: 1 in the breakdown, else the policy's)"
+    )
     parser.add_argument("--full", action="store_true", help="the default fit, whole")
     parser.add_argument("--busy", action="store_true", help="with --full: beside a busy loop")
     parser.add_argument("--policies", action="store_true", help="thread settings beside a busy loop")
@@ -239,12 +243,12 @@ def main() -> None:
                 print_table(result["rows"])
                 payload["policies"].append(result)
             elif args.full:
-                result = full(subject, work, args.busy)
+                result = full(subject, work, args.busy, args.threads)
                 print(f"\n{subject.name}: default fit{' beside a busy loop' if args.busy else ''}, "
                       f"{result['wall_s']:.0f} s wall, {result['cpu_s']:.0f} s CPU, load {result['load_average']}")
                 payload["full"].append(result)
             else:
-                result = breakdown(subject, work, args.steps, args.repeats, args.threads)
+                result = breakdown(subject, work, args.steps, args.repeats, args.threads or 1)
                 print_breakdown(result)
                 payload["breakdown"].append(result)
     write_json("bench_fit_speed" + (f"_{args.label}" if args.label else ""), payload)
