@@ -45,6 +45,8 @@ PRIOR = ROOT / "assets" / "prior.pt"
 BUSY_WARMUP_S = 60
 """Seconds the busy loop runs before a fit starts: the one-minute load average then reads about
 0.6 of it, above the thread policy's threshold of a busy core."""
+HELD_BATCH = 8
+"""Frames refined together with the network's maps held: one evaluation of the maps serves them all."""
 POLICIES = {
     "spin, 2 threads": {"OMP_WAIT_POLICY": "", "OMP_NUM_THREADS": "2"},
     "passive, 2 threads": {"OMP_WAIT_POLICY": "PASSIVE", "OMP_NUM_THREADS": "2"},
@@ -185,12 +187,11 @@ def held_check(avatar: Path, subject: Path, steps: int) -> dict:
 
     from pghm.train import pose_refine
     from pghm.train.evaluate import evaluate
-    from pghm.train.fit import TRACK_BATCH
 
     torch.set_num_threads(1)
     original = pose_refine.refine_poses
     rows = []
-    for held, batch in ((False, pose_refine.IMAGES_PER_BATCH), (False, TRACK_BATCH), (True, TRACK_BATCH)):
+    for held, batch in ((False, pose_refine.IMAGES_PER_BATCH), (False, HELD_BATCH), (True, HELD_BATCH)):
         pose_refine.refine_poses = functools.partial(original, hold_appearance=held, batch=batch)
         try:
             started = time.process_time()

@@ -70,10 +70,6 @@ TRACK_STEPS = 30
 Adam's first steps move every coordinate by about the learning rate, whatever its gradient, so
 the poses settle only after a few tens (docs/lab/defaults.md, "Fit: settling the pose track")."""
 
-TRACK_BATCH = 8
-"""Frames the pose settling refines together: one evaluation of the identity's U-Net features and
-one pass of Python overhead serve eight frames (the corrections of a frame depend on its image alone)."""
-
 TRACK_MIN_VISITS = 20
 """Stage 2 visits per training frame (its steps x images per step / training images) from which its
 corrections need no settling (docs/lab/defaults.md, "Fit: settling the pose track")."""
@@ -365,7 +361,6 @@ def fit(
                     corrections,
                     progress=config.stage2.progress,
                     desc="fit: settle poses",
-                    batch=TRACK_BATCH,
                     hold_appearance=config.hold_appearance,
                 )
             avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
