@@ -1,6 +1,7 @@
-"""``pghm bench stress``: run the stress suite and the loader fuzzer, and write their record as docs/stress.md.
+"""``pghm bench stress``: run the stress suite and the loader fuzzer, and write their record as docs/stress.md
+(the guide: what each area attacks, its totals, the contract, the fuzzer) and docs/lab/stress-cases.md (every case).
 
-The table is the suite's own record, never hand-written: every case in ``tests/stress``
+The tables are the suite's own record, never hand-written: every case in ``tests/stress``
 reports what it tried, what the spec or the error contract expects, what it observed and
 whether that holds (``stress_kit.check``), and the suite writes those rows as JSON when
 ``$PGHM_STRESS_RECORD`` names a file. This module runs the suite that way in a subprocess,
@@ -29,33 +30,35 @@ from pghm.io.atomic import atomic_write_bytes
 ROOT = Path(__file__).resolve().parent.parent
 SUITE = ROOT / "tests" / "stress"
 FUZZER = ROOT / "benchmarks" / "fuzz_loaders.py"
-AREAS = (
-    "splatter",
-    "splatter properties",
-    "model and skinning",
-    "training",
-    "bad avatar.pt",
-    "bad motion file",
-    "bad dataset",
-    "found and fixed",
-    "nothing lost",
-    "adversarial: numeric options",
-    "adversarial: outputs",
-    "adversarial: file contents",
-    "adversarial: sizes and memory",
-    "adversarial: training on nothing",
-    "adversarial: Ctrl-C",
-    "adversarial: SIGTERM",
-    "adversarial: misc",
-    "adversarial: leak classes",
-    "adversarial: synth",
-    "adversarial: train-prior",
-    "adversarial: bench",
-    "adversarial: data sheet",
-    "adversarial: motion make",
-    "adversarial: concurrent writers",
-)
-"""Report sections, in this order (an area not listed here follows them)."""
+AREAS = {
+    "splatter": "extreme scales, depths, focals and image sizes, NaN and inf inputs, invisible Gaussians",
+    "splatter properties": "invariants: order, occlusion, translation, alpha in [0, 1]",
+    "model and skinning": "huge and wrapped rotations, scaled latents, degenerate normals, float32 against float64",
+    "training": "overflowing learning rates, NaN losses, non-finite Gaussians and updates",
+    "bad avatar.pt": "truncated, random, mis-versioned, NaN and code-running avatar files, per command",
+    "bad motion file": "broken BVH and motion .npz files, per command",
+    "bad dataset": "missing and mis-sized images, NaN cameras, per command",
+    "found and fixed": "inputs that once escaped the error contract, kept as regressions",
+    "nothing lost": "SIGKILL at each state of every atomic save, and resume after it",
+    "adversarial: numeric options": "every numeric option out of range, NaN, inf and not a number",
+    "adversarial: outputs": "every output unwritable, a folder, /dev/full, an input or inside one",
+    "adversarial: file contents": "valid files holding absurd values (rotations of 1e20, empty files)",
+    "adversarial: sizes and memory": "sizes past the GL limit, the CPU's memory and the data set",
+    "adversarial: training on nothing": "runs where no step could learn anything",
+    "adversarial: Ctrl-C": "SIGINT at set points of every long command",
+    "adversarial: SIGTERM": "SIGTERM at the same points, and resume after it",
+    "adversarial: misc": "one kind of file passed where another is expected",
+    "adversarial: leak classes": "one check per class: physical ranges, outputs in inputs, unreadable inputs",
+    "adversarial: synth": "synth configs: bad JSON, unknown fields, non-finite and absurd values",
+    "adversarial: train-prior": "data sets listing missing or incomplete subjects, --resume without a checkpoint",
+    "adversarial: bench": "unknown benchmarks and outputs refused before the work",
+    "adversarial: data sheet": "folders that are neither a subject nor a data set, wrong output formats",
+    "adversarial: motion make": "unknown names and missing body models",
+    "adversarial: concurrent writers": "two writers of one output at once",
+}
+"""Report sections, in this order (an area not listed here follows them), and what each attacks."""
+CASES = Path("lab") / "stress-cases.md"
+"""The per-case listing, beside the report (relative to the report's folder)."""
 AREA_NOTES = {
     "nothing lost": (
         "**How the kill tests choose their moment.** A kill must land where the test says, on any "
@@ -68,7 +71,7 @@ AREA_NOTES = {
         "can be interrupted in: `created` (empty temporary file), `written` (complete temporary file, "
         "fsynced, not renamed) and `renamed` (the save is done). The test starts the child with the "
         "point it wants, waits for the marker and sends SIGKILL, so each kill lands in that state on "
-        "every run; the rows below name the save and the point, and the checkpoint step the kill "
+        "every run; the case listing names the save and the point, and the checkpoint step the kill "
         "implies is asserted exactly."
     ),
     "adversarial: leak classes": (
@@ -124,39 +127,43 @@ def _cell(text: object) -> str:
     return _short_paths(str(text)).replace("|", "\\|").replace("\n", " ")
 
 
-def format_report(rows: list[dict], fuzz: dict | None, suite_status: int, seconds: float, fuzz_seconds: float) -> str:
-    """The Markdown of docs/stress.md from the suite's rows and the fuzzer's JSON."""
+def _areas(rows: list[dict]) -> list[str]:
+    """The areas the rows fall in, in report order."""
+    areas = [area for area in AREAS if any(row["area"] == area for row in rows)]
+    return areas + sorted({row["area"] for row in rows} - set(areas))
+
+
+def _title(area: str) -> str:
+    return f"{area[0].upper()}{area[1:]}"
+
+
+def _totals(rows: list[dict], suite_status: int, seconds: float) -> str:
     passed = sum(row["passed"] for row in rows)
-    lines = [
-        "# Stress and bad-input report",
-        "",
-        f"Written by `pghm bench stress` ({platform.machine()}, "
-        f"Python {platform.python_version()}, load average {os.getloadavg()[0]:.1f}); do not edit: rerun it. "
-        "Each row is one case of the stress suite (`tests/stress`), recorded by the test that ran it: "
-        "the input tried, what the spec or the error contract (pghm/errors.py: one line, exit status 2) "
-        "expects, and what happened.",
-        "",
+    return (
         f"**{len(rows)} cases, {passed} pass, {len(rows) - passed} fail**; the suite "
-        f"{'passed' if suite_status == 0 else f'FAILED (pytest exit status {suite_status})'} in {seconds:.0f} s.",
-        "",
-    ]
-    areas = [a for a in AREAS if any(r["area"] == a for r in rows)]
-    areas += sorted({r["area"] for r in rows} - set(areas))
-    for area in areas:
-        lines += [f"## {area[0].upper()}{area[1:]}", ""]
-        if area in AREA_NOTES:
-            lines += [AREA_NOTES[area], ""]
-        lines += ["| Case | Expected | Observed | Result |", "|---|---|---|---|"]
-        for row in (r for r in rows if r["area"] == area):
-            lines.append(
-                f"| {_cell(row['case'])} | {_cell(row['expected'])} | {_cell(row['observed'])} | "
-                f"{'pass' if row['passed'] else '**FAIL**'} |"
-            )
-        lines.append("")
-    lines += [f"## Fuzzing the loaders ({fuzz_seconds:g} s)", ""]
+        f"{'passed' if suite_status == 0 else f'FAILED (pytest exit status {suite_status})'} in {seconds:.0f} s."
+    )
+
+
+def _area_table(rows: list[dict]) -> list[str]:
+    """One line per area: what it attacks, its cases, passes and failures, linked to its listing."""
+    lines = ["| Area | What is attacked | Cases | Pass | Fail |", "|---|---|---|---|---|"]
+    for area in _areas(rows):
+        mine = [row for row in rows if row["area"] == area]
+        passed = sum(row["passed"] for row in mine)
+        failed = len(mine) - passed
+        anchor = re.sub(r"[^\w\- ]", "", _title(area).lower()).replace(" ", "-")
+        lines.append(
+            f"| [{_title(area)}]({CASES.as_posix()}#{anchor}) | {AREAS.get(area, '')} | {len(mine)} | {passed} | "
+            f"{failed if not failed else f'**{failed}**'} |"
+        )
+    return lines + [""]
+
+
+def _fuzz_section(fuzz: dict | None, fuzz_seconds: float) -> list[str]:
+    lines = [f"## Fuzzing the loaders ({fuzz_seconds:g} s)", ""]
     if fuzz is None:
-        lines += ["The fuzzer did not produce results.", ""]
-        return "\n".join(lines)
+        return lines + ["The fuzzer did not produce results.", ""]
     lines += [
         "`benchmarks/fuzz_loaders.py` mutates valid BVH clips, motion files, avatar files, subject "
         "folders and videos (structure-aware edits and raw byte damage) and runs each loader on them; any exception "
@@ -179,12 +186,69 @@ def format_report(rows: list[dict], fuzz: dict | None, suite_status: int, second
         ]
     else:
         lines.append("No unexpected exception: every rejected input raised one `PghmError` line.")
-    lines.append("")
+    return lines + [""]
+
+
+def format_report(rows: list[dict], fuzz: dict | None, suite_status: int, seconds: float, fuzz_seconds: float) -> str:
+    """The guide (docs/stress.md): what each area attacks and its totals, the contract, the fuzzer.
+
+    Its length grows with the areas, not the cases; every case is in :func:`format_cases`.
+    """
+    lines = [
+        "# Stress and bad-input report",
+        "",
+        f"Written by `pghm bench stress` ({platform.machine()}, "
+        f"Python {platform.python_version()}, load average {os.getloadavg()[0]:.1f}); do not edit: rerun it. "
+        "The stress suite (`tests/stress`) attacks each part of pghm with extreme values and bad inputs; every "
+        "case records the input tried, what the spec or the error contract (pghm/errors.py: one line naming "
+        "the file or value at fault, exit status 2, no output left behind) expects, and what happened. "
+        f"Every case, with those three, is listed in [{CASES.name}]({CASES.as_posix()}).",
+        "",
+        _totals(rows, suite_status, seconds),
+        "",
+        "## What is attacked",
+        "",
+        *_area_table(rows),
+        "## The contract",
+        "",
+    ]
+    for area in (area for area in _areas(rows) if area in AREA_NOTES):
+        lines += [f"### {_title(area)}", "", AREA_NOTES[area], ""]
+    return "\n".join(lines + _fuzz_section(fuzz, fuzz_seconds))
+
+
+def format_cases(rows: list[dict], report_name: str, suite_status: int, seconds: float) -> str:
+    """The per-case listing (docs/lab/stress-cases.md): one table per area, one row per case."""
+    back = Path(*[".."] * (len(CASES.parts) - 1), report_name).as_posix()
+    lines = [
+        "# Stress cases",
+        "",
+        f"Written by `pghm bench stress` with [{report_name}]({back}), which says what each area attacks; "
+        "do not edit: rerun it. One row per case of the stress suite (`tests/stress`), recorded by the test "
+        "that ran it.",
+        "",
+        _totals(rows, suite_status, seconds),
+        "",
+    ]
+    for area in _areas(rows):
+        lines += [f"## {_title(area)}", "", "| Case | Expected | Observed | Result |", "|---|---|---|---|"]
+        for row in (r for r in rows if r["area"] == area):
+            lines.append(
+                f"| {_cell(row['case'])} | {_cell(row['expected'])} | {_cell(row['observed'])} | "
+                f"{'pass' if row['passed'] else '**FAIL**'} |"
+            )
+        lines.append("")
     return "\n".join(lines)
 
 
+def cases_path(report: Path) -> Path:
+    """Where the per-case listing of ``report`` goes."""
+    return report.parent / CASES
+
+
 def run_stress(report: Path, out: Path, fuzz_seconds: float) -> int:
-    """Run the suite and the fuzzer, write ``report`` (Markdown) and ``out``/stress.json; 0 when all pass."""
+    """Run the suite and the fuzzer, write ``report`` and its case listing (Markdown) and ``out``/stress.json;
+    0 when all pass."""
     if not SUITE.is_dir() or not FUZZER.is_file():
         raise PghmError(f"pghm bench stress runs {SUITE} and {FUZZER} of a source checkout; they are not here")
     for module in ("pytest", "hypothesis"):
@@ -210,11 +274,14 @@ def run_stress(report: Path, out: Path, fuzz_seconds: float) -> int:
     if not rows:
         raise PghmError("the stress suite recorded no cases (did it start?); see the pytest output above")
     atomic_write_bytes(report, format_report(rows, fuzz, suite.returncode, seconds, fuzz_seconds).encode())
+    cases = cases_path(report)
+    cases.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(cases, format_cases(rows, report.name, suite.returncode, seconds).encode())
     atomic_write_bytes(out / "stress.json", json.dumps(without_paths({"rows": rows, "fuzz": fuzz}), indent=1).encode())
     failed = [row for row in rows if not row["passed"]]
     print(
         f"stress: {len(rows)} cases, {len(rows) - len(failed)} pass, {len(failed)} fail; "
         f"fuzzer: {'no' if fuzz and not fuzz['findings'] else 'SOME'} unexpected exceptions"
     )
-    print(f"wrote {report} and {out / 'stress.json'}")
+    print(f"wrote {report}, {cases} and {out / 'stress.json'}")
     return 0 if suite.returncode == 0 and fuzzer.returncode == 0 and not failed else 1

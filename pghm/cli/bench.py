@@ -7,7 +7,7 @@ Benchmarks live in :data:`BENCHMARKS` (name -> function of the parsed arguments)
 by adding an entry. ``splat`` sweeps the splatter's optional approximations on the body
 scene and reports, per setting, median time and error against the exact image. ``stress``
 runs the stress suite (tests/stress) and the loader fuzzer and writes their record as
-docs/stress.md.
+docs/stress.md, with every case in docs/lab/stress-cases.md.
 
 The measuring code is lab code, not the library's: it lives in the source checkout's
 ``benchmarks/`` (``splat_measure.py``, ``stress_report.py``), which a wheel does not install,
@@ -68,8 +68,10 @@ def _splat(args: argparse.Namespace) -> int:
 
 
 def _stress(args: argparse.Namespace) -> int:
+    report = _lab_module("stress_report")
     check_output(args.report, option="--report")
-    return _lab_module("stress_report").run_stress(args.report, args.out, args.fuzz_seconds)
+    check_output(report.cases_path(args.report), option="--report")
+    return report.run_stress(args.report, args.out, args.fuzz_seconds)
 
 
 BENCHMARKS: dict[str, Callable[[argparse.Namespace], int]] = {"splat": _splat, "stress": _stress}
@@ -102,7 +104,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--report",
         type=Path,
         default=Path("docs") / "stress.md",
-        help="stress: the Markdown report to write (default docs/stress.md)",
+        help="stress: the Markdown report (default docs/stress.md; every case goes to lab/stress-cases.md beside it)",
     )
     parser.add_argument(
         "--fuzz-seconds",

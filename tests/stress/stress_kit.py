@@ -7,7 +7,8 @@ second ``conftest`` module would shadow it.
 contract expects, what it observed, and whether that is right; the row is kept (pass or
 FAIL) and the check asserted. When ``$PGHM_STRESS_RECORD`` names a file, every row is
 written there as JSON at exit; ``pghm bench stress`` runs this suite that way and renders
-the rows as docs/stress.md, so the table is the suite's own record, not hand-written.
+the rows as docs/stress.md (totals) and docs/lab/stress-cases.md (every row), so the tables
+are the suite's own record, not hand-written.
 
 **CLI runner.** :func:`cli` runs ``pghm ARGS`` in a real child process (forked from a
 server that has already imported pghm, see ``cli_server.py``) and returns its exit status,
