@@ -6,6 +6,9 @@ Each subcommand lives in its own module under :mod:`pghm.cli` and exposes
 taking the parsed arguments and returning the exit status. The subcommands are thin: they
 parse, call a library function, print.
 
+**Threads.** :func:`main` applies :mod:`pghm.cli.threads` before any subcommand imports torch:
+waiting OpenMP threads sleep, and torch takes one thread per core other processes leave free.
+
 **Errors.** :func:`main` is the one place a failure becomes what the user sees, for every
 subcommand, including while the subcommand modules (and torch) are imported: a
 :class:`PghmError` or an ``OSError`` (permission denied, disk full, a folder where a file
@@ -30,6 +33,7 @@ import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
+from pghm.cli.threads import set_threads, set_wait_policy
 from pghm.errors import EXIT_USER_ERROR, PghmError
 
 SUBCOMMAND_MODULES = ("synth", "capture", "data", "motion", "train", "export", "bench", "render")
@@ -155,8 +159,14 @@ def run_command(
     return guarded(tool, work, debug_requested(argv))
 
 
+def _execute(args: argparse.Namespace) -> int:
+    set_threads()
+    return args.func(args)
+
+
 def main(argv: list[str] | None = None) -> int:
-    return run_command("pghm", build_parser, lambda args: args.func(args), argv)
+    set_wait_policy()  # before the subcommands import torch
+    return run_command("pghm", build_parser, _execute, argv)
 
 
 if __name__ == "__main__":

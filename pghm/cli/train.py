@@ -21,6 +21,7 @@ from pghm.cli.options import (
 )
 from pghm.cli.render import parse_colour
 from pghm.errors import PghmError
+from pghm.io.atomic import atomic_write_bytes
 from pghm.io.outputs import PNG_SUFFIXES, check_output
 from pghm.model import ModelConfig
 from pghm.model.config import MAX_CHANNELS
@@ -172,6 +173,13 @@ def register(subparsers) -> None:
         "colours are trained texel by texel (4 times the Gaussians; docs/training.md, 'Detail layer'); "
         "0: none (default %(default)s)",
     )
+    fit.add_argument(
+        "--profile",
+        default=None,
+        metavar="JSON",
+        help="time each part of the fit (data, network, splatting, losses, optimiser, guard, pose settling): "
+        "print the table and write it to JSON",
+    )
     _common(fit, fit_defaults.stage1)
     fit.set_defaults(func=cmd_fit)
 
@@ -252,8 +260,13 @@ def cmd_train_prior(args: argparse.Namespace) -> int:
 
 def cmd_fit(args: argparse.Namespace) -> int:
     from pghm.train.fit import fit
+    from pghm.train.profile import profiled
 
     check_output(args.out, inputs=[args.subject_dir, args.prior, args.body_model_path])
+    if args.profile is not None:
+        check_output(args.profile, inputs=[args.subject_dir, args.prior, args.body_model_path], option="--profile")
+        if Path(args.profile).resolve() == Path(args.out).resolve():
+            raise PghmError(f"--out and --profile are the same file ({args.out}); give two names")
     device = rendering_device(args.device)
     _logging()
     stages = [
@@ -279,7 +292,13 @@ def cmd_fit(args: argparse.Namespace) -> int:
         body_model_path=args.body_model_path,
     )
     prior = ModelConfig() if args.prior == "scratch" else args.prior
-    avatar = fit(args.subject_dir, prior, args.out, config, resume=args.resume, device=device)
+    if args.profile is None:
+        avatar = fit(args.subject_dir, prior, args.out, config, resume=args.resume, device=device)
+    else:
+        with profiled() as timing:
+            avatar = fit(args.subject_dir, prior, args.out, config, resume=args.resume, device=device)
+        print(timing.table(), file=sys.stderr)
+        atomic_write_bytes(args.profile, json.dumps(timing.record(), indent=2).encode())
     print(f"wrote {args.out}: {avatar.metadata['steps']} steps, {avatar.metadata['seconds']} s")
     return 0
 

@@ -25,7 +25,8 @@ from pghm.body.model import BodyModel
 from pghm.errors import DatasetError, PghmError, listed
 from pghm.io.read_errors import IMAGE_READ_ERRORS
 from pghm.splat import Camera
-from pghm.subject import Frame, Subject, open_subjects, stated_pose_noise
+from pghm.subject import Frame, Subject, open_subjects, read_mask, stated_pose_noise
+from pghm.train.person_crop import Crop, crop_size, mask_box, place
 from pghm.train.pose_smoothing import smooth_track
 
 log = logging.getLogger(__name__)
@@ -50,6 +51,8 @@ class Sample:
         rotations: (J, 3) pose to train on: the stored estimate (possibly noisy), smoothed
             over time, or exact (see :class:`TrainingData`).
         translation: (3,) root translation, likewise.
+        crop: the box of the frame that image, mask and camera hold (:mod:`pghm.train.person_crop`),
+            or None for the whole frame.
     """
 
     identity: int
@@ -60,6 +63,7 @@ class Sample:
     camera: Camera
     rotations: Tensor
     translation: Tensor
+    crop: Crop | None = None
 
 
 def _smoothed_poses(subject: Subject, images: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray]:
@@ -118,6 +122,8 @@ class TrainingData:
             instead of the estimates, to measure appearance apart from pose error.
         pose_smoothing: standard deviation in frames of a Gaussian filter applied over time
             to the split's estimated poses (see :mod:`pghm.train.pose_smoothing`); 0: as stored.
+        crop_margin: cut each image to the person's box with this margin in pixels
+            (:mod:`pghm.train.person_crop`); None: whole frames (what evaluation measures).
     """
 
     def __init__(
@@ -127,6 +133,7 @@ class TrainingData:
         max_identities: int | None = None,
         true_poses: bool = False,
         pose_smoothing: float = 0.0,
+        crop_margin: int | None = None,
     ) -> None:
         root = Path(root)
         if not root.is_dir():
@@ -165,6 +172,26 @@ class TrainingData:
             _smoothed_poses(subject, images, pose_smoothing) if pose_smoothing else None
             for subject, images in zip(self.subjects, self.images)
         ]
+        self.crops: list[dict[int, Crop]] = [
+            self._person_crops(identity, crop_margin) if crop_margin is not None else {}
+            for identity in range(len(self.subjects))
+        ]
+
+    def _person_crops(self, identity: int, margin: int) -> dict[int, Crop]:
+        """The crop of each readable training image of an identity: one size, around each mask."""
+        subject = self.subjects[identity]
+        boxes = {}
+        for index in self.images[identity].tolist():
+            if (identity, index) in self.bad:
+                continue
+            try:
+                boxes[index] = mask_box(read_mask(subject.mask_path(index)))
+            except DatasetError as error:
+                self._skip(identity, index, error)
+        self._check_some_readable(identity)
+        width, height = int(subject.arrays.width.max()), int(subject.arrays.height.max())
+        size = crop_size([box for box in boxes.values() if box is not None], width, height, margin)
+        return {index: place(box, size, width, height) for index, box in boxes.items()}
 
     def _check_files(self, subject: Subject, images: np.ndarray) -> None:
         """Every image and mask of the split opens, with the size cameras.npz gives (PNG headers only).
@@ -248,18 +275,24 @@ class TrainingData:
         """Read one image and its annotations."""
         subject = self.subjects[identity]
         frame = subject[image_index]
+        camera = Camera.from_matrices(
+            torch.as_tensor(frame.K, dtype=torch.float32),
+            torch.as_tensor(frame.world_to_camera, dtype=torch.float32),
+            width=int(frame.image.shape[1]),
+            height=int(frame.image.shape[0]),
+        )
+        image, mask = frame.image, frame.mask
+        crop = self.crops[identity].get(image_index)
+        if crop is not None:
+            image, mask, camera = crop.image(image), crop.image(mask), crop.camera(camera)
         return Sample(
             identity=identity,
             image_index=image_index,
             frame_key=self.frame_offsets[identity] + int(frame.frame_index),
-            image=torch.from_numpy(np.ascontiguousarray(frame.image)).permute(2, 0, 1).float(),
-            mask=torch.from_numpy(np.ascontiguousarray(frame.mask))[None].float(),
-            camera=Camera.from_matrices(
-                torch.as_tensor(frame.K, dtype=torch.float32),
-                torch.as_tensor(frame.world_to_camera, dtype=torch.float32),
-                width=int(frame.image.shape[1]),
-                height=int(frame.image.shape[0]),
-            ),
+            image=torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float(),
+            mask=torch.from_numpy(np.ascontiguousarray(mask))[None].float(),
+            camera=camera,
+            crop=crop,
             **self._pose(identity, image_index, frame),
         )
 

@@ -10,6 +10,7 @@ them as its pose track (:mod:`pghm.train.pose_track`).
 Then, for poses stated noisier than the synthetic data's (a capture) whose frames stage 2 visits
 too rarely, the track is settled: every training frame's correction refined against its image
 with the avatar frozen (:mod:`pghm.train.pose_refine`; :func:`track_steps`).
+Both stages train on crops around the person (:mod:`pghm.train.person_crop`).
 Last, when ``detail`` has steps, a detail layer trains on the frozen avatar (:mod:`pghm.train.detail`).
 """
 
@@ -28,6 +29,7 @@ from pghm.errors import PghmError
 from pghm.io.avatar import Avatar, load_avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig
 from pghm.model.pghm import COMPONENTS
+from pghm.train import profile
 from pghm.train.background import TRAINING_BACKGROUND
 from pghm.train.data import ESTIMATOR_ROTATION_SIGMA, TrainingData
 from pghm.train.detail import DETAIL_LR, train_detail
@@ -44,6 +46,7 @@ from pghm.train.loop import (
 )
 from pghm.train.losses import LossWeights
 from pghm.train.optim import LazyAdam
+from pghm.train.person_crop import CROP_MARGIN
 from pghm.train.pose_refine import refine_poses
 from pghm.train.pose_track import learned_track
 from pghm.train.run_setup import GeometryCache, checkpoint_path, config_record, lpips_for
@@ -127,6 +130,13 @@ class FitConfig:
     split: str = "train"
     """The subject's split the avatar is fitted on (:data:`pghm.subject.ALL_SPLIT`: every
     image, as ``pghm capture --polish`` does to align the held-out frames' poses)."""
+    hold_appearance: bool = False
+    """Settle the pose track with the network's maps held at each batch's starting poses
+    (:class:`pghm.train.pose_refine.HeldAppearance`): the skinning moves the Gaussians and no U-Net
+    runs per step; off, as it aligns worse (docs/training.md, "Speed")."""
+    crop_margin: int | None = CROP_MARGIN
+    """Train on each image cut to the person's box with this margin in pixels, the loss kept the
+    full frame's (:mod:`pghm.train.person_crop`); None: whole frames."""
     lpips: bool = True
     body_model_path: str | None = None
 
@@ -228,7 +238,9 @@ def fit(
             check_learning_rate(name, getattr(config, name))
     out = Path(out)
     ckpt = checkpoint_path(out, resume)
-    data = TrainingData(subject_dir, split=config.split, pose_smoothing=config.pose_smoothing)
+    data = TrainingData(
+        subject_dir, split=config.split, pose_smoothing=config.pose_smoothing, crop_margin=config.crop_margin
+    )
     if data.num_identities != 1:
         raise PghmError(f"{subject_dir}: fit takes one subject folder, found {data.num_identities}")
     if config.pose_lr is None:
@@ -270,18 +282,19 @@ def fit(
     state1 = LoopState(step=config.stage1.steps)
     if start_stage == 1:
         state1 = restore(payload, objective, stage1_opt) if payload else LoopState()
-        state1 = run_stage(
-            objective=objective,
-            trainable=[latent],
-            optimizer=stage1_opt,
-            data=data,
-            geometry_of=geometries,
-            config=config.stage1,
-            checkpoint=ckpt,
-            state=state1,
-            extra={"stage": 1},
-            description="fit 1/2",
-        )
+        with profile.phase("stage 1"):
+            state1 = run_stage(
+                objective=objective,
+                trainable=[latent],
+                optimizer=stage1_opt,
+                data=data,
+                geometry_of=geometries,
+                config=config.stage1,
+                checkpoint=ckpt,
+                state=state1,
+                extra={"stage": 1},
+                description="fit 1/2",
+            )
 
     network = network_parameters(model)
     for p in network:
@@ -295,18 +308,19 @@ def fit(
         state2 = restore(payload, objective, stage2_opt)
     objective.weights = config.stage2.loss
     trainable = [p for g in groups for p in g["params"]]
-    state2 = run_stage(
-        objective=objective,
-        trainable=trainable,
-        optimizer=stage2_opt,
-        data=data,
-        geometry_of=geometries,
-        config=config.stage2,
-        checkpoint=ckpt,
-        state=state2,
-        extra={"stage": 2},
-        description="fit 2/2",
-    )
+    with profile.phase("stage 2"):
+        state2 = run_stage(
+            objective=objective,
+            trainable=trainable,
+            optimizer=stage2_opt,
+            data=data,
+            geometry_of=geometries,
+            config=config.stage2,
+            checkpoint=ckpt,
+            state=state2,
+            extra={"stage": 2},
+            description="fit 2/2",
+        )
 
     avatar = Avatar(
         model=model.eval(),
@@ -337,32 +351,36 @@ def fit(
         if config.track_steps:
             started = time.perf_counter()
             loss = config.stage2.loss
-            refine_poses(
-                avatar,
-                data,
-                config.track_steps,
-                loss,
-                POSE_LR,
-                corrections,
-                progress=config.stage2.progress,
-                desc="fit: settle poses",
-            )
+            with profile.phase("pose settling"):
+                refine_poses(
+                    avatar,
+                    data,
+                    config.track_steps,
+                    loss,
+                    POSE_LR,
+                    corrections,
+                    progress=config.stage2.progress,
+                    desc="fit: settle poses",
+                    hold_appearance=config.hold_appearance,
+                )
             avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
         avatar.pose_track = move(learned_track(corrections, data), torch.device("cpu"))  # a record, as in the file
     if config.detail.steps:
-        avatar.model, detail = train_detail(
-            model,
-            avatar.latent,
-            corrections,
-            data,
-            config.detail,
-            config.detail_lr,
-            lpips,
-            ckpt,
-            config.body_model_path,
-        )
+        with profile.phase("detail"):
+            avatar.model, detail = train_detail(
+                model,
+                avatar.latent,
+                corrections,
+                data,
+                config.detail,
+                config.detail_lr,
+                lpips,
+                ckpt,
+                config.body_model_path,
+            )
         avatar.metadata["steps"]["detail"] = detail.step
         avatar.metadata["detail_seconds"] = round(detail.seconds, 1)
-    save_avatar(out, avatar)
+    with profile.phase("save"):
+        save_avatar(out, avatar)
     ckpt.unlink(missing_ok=True)  # the avatar holds the result; a stale checkpoint would only mislead --resume
     return avatar

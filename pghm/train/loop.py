@@ -35,12 +35,13 @@ from pghm.errors import DatasetError, PghmError
 from pghm.io.atomic import atomic_write_bytes
 from pghm.io.torch_file import TorchFileError, load_torch_file
 from pghm.model.geometry import SubjectGeometry
-from pghm.model.pghm import PGHM
+from pghm.model.pghm import PGHM, AvatarOutput
 from pghm.splat import Camera, render
-from pghm.train import distributed
+from pghm.train import distributed, profile
 from pghm.train.background import BACKGROUND_KINDS, BLACK, WHITE, composite_render, composite_target, draw_backgrounds
 from pghm.train.data import PoseCorrections, Sample, TrainingData
 from pghm.train.losses import LossWeights, objective, psnr, silhouette
+from pghm.train.person_crop import area_tensor
 
 log = logging.getLogger(__name__)
 
@@ -131,26 +132,31 @@ class AvatarObjective(nn.Module):
     def identity_map(self, identity: int) -> Tensor:
         return self.latent if self.latent is not None else self.model.decode_identity(identity)
 
+    def avatar(
+        self, identity: int, geometry: SubjectGeometry, pose: BodyPose, centres: Tensor, pose_index: Tensor
+    ) -> AvatarOutput:
+        """Both Gaussian sets of B views (camera centres (B, 3)) of P poses (see :meth:`PGHM.forward`)."""
+        return self.model(self.identity_map(identity), geometry, pose, centres, pose_index)
+
     def renders(
         self, samples: list[Sample], geometry: SubjectGeometry, backgrounds: Tensor | None = None
     ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
         """Static and dynamic renders (B, 3, H, W) of one identity's samples on white, or on
         ``backgrounds`` (B, 3, H, W) when given; their accumulated alphas (B, 1, H, W); the regulariser."""
-        # One pose per distinct frame; the views of a frame share it.
-        keys = [s.frame_key for s in samples]
-        unique = distinct_frames(samples)
-        first = [keys.index(k) for k in unique]
-        rotations = torch.stack([samples[i].rotations for i in first])
-        translation = torch.stack([samples[i].translation for i in first])
-        if self.corrections is not None:
-            rotations, translation = self.corrections(
-                torch.tensor(unique, device=self.device), rotations, translation
-            )
-        pose_index = torch.tensor([unique.index(k) for k in keys], device=self.device)
-        centres = torch.stack([s.camera.centre.float() for s in samples])
-        out = self.model(
-            self.identity_map(samples[0].identity), geometry, BodyPose(rotations, translation), centres, pose_index
-        )
+        with profile.part(profile.NETWORK_FORWARD):
+            # One pose per distinct frame; the views of a frame share it.
+            keys = [s.frame_key for s in samples]
+            unique = distinct_frames(samples)
+            first = [keys.index(k) for k in unique]
+            rotations = torch.stack([samples[i].rotations for i in first])
+            translation = torch.stack([samples[i].translation for i in first])
+            if self.corrections is not None:
+                rotations, translation = self.corrections(
+                    torch.tensor(unique, device=self.device), rotations, translation
+                )
+            pose_index = torch.tensor([unique.index(k) for k in keys], device=self.device)
+            centres = torch.stack([s.camera.centre.float() for s in samples])
+            out = self.avatar(samples[0].identity, geometry, BodyPose(rotations, translation), centres, pose_index)
         # Both sets of all B views in one batched render: (2B, H, W, 3).
         if len({(s.camera.width, s.camera.height) for s in samples}) > 1:
             raise DatasetError("the images of one subject must all have the same size")
@@ -164,17 +170,21 @@ class AvatarObjective(nn.Module):
             torch.cat([getattr(out.static, f), getattr(out.dynamic, f)])
             for f in ("means", "scales", "colors", "opacities")
         ]
-        if not all(bool(torch.isfinite(t.detach()).all()) for t in both):
+        with profile.part(profile.GUARD):
+            finite = all(bool(torch.isfinite(t.detach()).all()) for t in both)
+        if not finite:
             # A diverged network: hand the loop a non-finite loss that still has a graph (the
             # guard then skips the step and lowers the rate) rather than non-finite Gaussians,
             # which render refuses.
             poison = sum(t.sum() for t in both) * math.nan
             blank = poison.expand(len(samples), 3, samples[0].camera.height, samples[0].camera.width)
             return blank, blank, blank[:, :1], blank[:, :1], out.regularizer + poison
-        drawn = render(*both, cameras, background=WHITE if backgrounds is None else BLACK)
-        images, alphas = drawn.rgb.permute(0, 3, 1, 2), drawn.alpha[:, None]
-        if backgrounds is not None:
-            images = composite_render(images, alphas, torch.cat([backgrounds, backgrounds]))
+        with profile.part(profile.SPLAT_FORWARD):
+            drawn = render(*both, cameras, background=WHITE if backgrounds is None else BLACK)
+            profile.mark_backward([drawn.rgb, drawn.alpha], both)
+            images, alphas = drawn.rgb.permute(0, 3, 1, 2), drawn.alpha[:, None]
+            if backgrounds is not None:
+                images = composite_render(images, alphas, torch.cat([backgrounds, backgrounds]))
         count = len(samples)
         return images[:count], images[count:], alphas[:count], alphas[count:], out.regularizer
 
@@ -186,13 +196,32 @@ class AvatarObjective(nn.Module):
         backgrounds are moved to the model's device (loaded on the CPU, they are read there once)."""
         samples, backgrounds = [move(s, self.device) for s in samples], move(backgrounds, self.device)
         static, dynamic, static_alpha, dynamic_alpha, regularizer = self.renders(samples, geometry, backgrounds)
-        target = torch.stack([s.image for s in samples])
-        mask = torch.stack([s.mask for s in samples])
-        if backgrounds is not None:
-            target = composite_target(target, mask, backgrounds)
-        loss, terms = objective(static, dynamic, target, regularizer, self.weights, self.lpips)
+        with profile.part(profile.DATA):
+            target = torch.stack([s.image for s in samples])
+            mask = torch.stack([s.mask for s in samples])
+            if backgrounds is not None:
+                target = composite_target(target, mask, backgrounds)
+        with profile.part(profile.LOSSES):
+            return self._loss(static, dynamic, static_alpha, dynamic_alpha, regularizer, samples, target, mask)
+
+    def _loss(
+        self,
+        static: Tensor,
+        dynamic: Tensor,
+        static_alpha: Tensor,
+        dynamic_alpha: Tensor,
+        regularizer: Tensor,
+        samples: list[Sample],
+        target: Tensor,
+        mask: Tensor,
+    ) -> tuple[Tensor, dict[str, float]]:
+        """The loss of renders (B, 3, H, W) and alphas (B, 1, H, W) against targets and masks, and its
+        terms; those of the full frames when the samples are crops."""
+        area = area_tensor([s.crop for s in samples]).to(static.device) if any(s.crop for s in samples) else None
+        share = area[:, 0] if area is not None else None
+        loss, terms = objective(static, dynamic, target, regularizer, self.weights, self.lpips, area)
         if self.weights.silhouette > 0:
-            sil_s, sil_d = silhouette(static_alpha, mask).mean(), silhouette(dynamic_alpha, mask).mean()
+            sil_s, sil_d = silhouette(static_alpha, mask, share).mean(), silhouette(dynamic_alpha, mask, share).mean()
             loss = loss + self.weights.silhouette * (sil_s + sil_d)
             terms.update(sil_s=float(sil_s.detach()), sil_d=float(sil_d.detach()), loss=float(loss.detach()))
         if self.corrections is not None and self.weights.pose_prior > 0:
@@ -200,7 +229,7 @@ class AvatarObjective(nn.Module):
             loss = loss + self.weights.pose_prior * prior
             terms["pose_prior"] = float(prior.detach())
             terms["loss"] = float(loss.detach())
-        terms["psnr"] = float(psnr(dynamic.detach().clamp(0, 1), target).mean())
+        terms["psnr"] = float(psnr(dynamic.detach().clamp(0, 1), target, share).mean())
         return loss, terms
 
 
@@ -398,36 +427,41 @@ def run_stage(
             optimizer.zero_grad(set_to_none=False)
             total, terms_sum, groups = 0.0, {}, 0
             for position, (identity, images) in enumerate(mine):
-                samples = data.load_group(identity, images)
-                if not samples:
-                    continue
-                # Drawn from the group's place in the global plan, whichever process computes it.
-                backgrounds = draw_backgrounds(
-                    config.background,
-                    len(samples),
-                    samples[0].camera.height,
-                    samples[0].camera.width,
-                    (config.seed, state.step, rank + position * world),
-                )
+                with profile.part(profile.DATA):
+                    samples = data.load_group(identity, images)
+                    if not samples:
+                        continue
+                    # Drawn from the group's place in the global plan, whichever process computes it.
+                    backgrounds = draw_backgrounds(
+                        config.background,
+                        len(samples),
+                        samples[0].camera.height,
+                        samples[0].camera.width,
+                        (config.seed, state.step, rank + position * world),
+                    )
                 # Gradients of all but the last group accumulate locally; DDP averages once.
                 last = position == len(mine) - 1
                 with contextlib.nullcontext() if last else distributed.no_sync(module):
                     loss, terms = module(samples, geometry_of(identity), backgrounds)
-                    (loss / len(mine)).backward()
+                    with profile.part(profile.LOSSES_BACKWARD):
+                        (loss / len(mine)).backward()
                 total += loss.item()
                 groups += 1
                 for key, value in terms.items():
                     terms_sum[key] = terms_sum.get(key, 0.0) + value
-            backup = [p.detach().clone() for p in trainable]
-            finite = math.isfinite(total) and _all_finite(p.grad for p in trainable if p.grad is not None)
+            with profile.part(profile.GUARD):
+                backup = [p.detach().clone() for p in trainable]
+                finite = math.isfinite(total) and _all_finite(p.grad for p in trainable if p.grad is not None)
             if finite:
-                torch.nn.utils.clip_grad_norm_(trainable, config.max_grad_norm)
-                optimizer.step()
-                if not _all_finite(trainable):
-                    with torch.no_grad():
-                        for p, saved in zip(trainable, backup):
-                            p.copy_(saved)
-                    finite = False
+                with profile.part(profile.OPTIMISER):
+                    torch.nn.utils.clip_grad_norm_(trainable, config.max_grad_norm)
+                    optimizer.step()
+                with profile.part(profile.GUARD):
+                    if not _all_finite(trainable):
+                        with torch.no_grad():
+                            for p, saved in zip(trainable, backup):
+                                p.copy_(saved)
+                        finite = False
             if not finite:
                 state.skipped_steps += 1
                 state.lr_scale *= LR_BACKOFF
@@ -447,7 +481,8 @@ def run_stage(
             progress.update(1)
             if rank == 0 and config.checkpoint_every > 0 and state.step % config.checkpoint_every == 0:
                 state.bad_images = sorted(data.bad)
-                save_checkpoint(checkpoint, objective, optimizer, state, extra)
+                with profile.part(profile.CHECKPOINT):
+                    save_checkpoint(checkpoint, objective, optimizer, state, extra)
             interrupt_point("train-step")
     except KeyboardInterrupt:
         if rank == 0:

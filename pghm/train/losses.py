@@ -10,7 +10,8 @@ Gaussian prior on the pose corrections and the silhouette term
 
 the L1 distance of the renders' accumulated alpha A to the target's mask m. SSIM uses a Gaussian window of 11 taps,
 sigma 1.5, K1 = 0.01, K2 = 0.03 over the valid region (pytorch-msssim, which implements
-exactly Wang et al. 2004's definition); the same function is the evaluation metric.
+exactly Wang et al. 2004's definition) as the evaluation metric; the loss computes the same
+formula with the targets' statistics shared by both renders (:class:`TargetSsim`, tested equal).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import math
 from dataclasses import asdict, dataclass
 
 import torch
+import torch.nn.functional as F
 from pytorch_msssim import ssim as _ssim
 from torch import Tensor
 
@@ -53,29 +55,87 @@ def ssim(x: Tensor, y: Tensor) -> Tensor:
     return _ssim(x, y, data_range=1.0, size_average=False, win_size=SSIM_WINDOW, win_sigma=SSIM_SIGMA)
 
 
-def psnr(x: Tensor, y: Tensor) -> Tensor:
-    """(B,) PSNR in dB of images in [0, 1]; +inf for identical images."""
+SSIM_K1, SSIM_K2 = 0.01, 0.03
+
+
+def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> Tensor:
+    """(size,) float32 normalised Gaussian taps exp(-k^2 / (2 sigma^2)), k = -size//2 .. size//2."""
+    taps = torch.arange(size, dtype=torch.float32) - size // 2
+    window = torch.exp(-(taps**2) / (2 * sigma**2))
+    return window / window.sum()
+
+
+def window_means(images: Tensor, window: Tensor) -> Tensor:
+    """(B, C, H - k + 1, W - k + 1): each channel of (B, C, H, W) filtered by the separable window
+    (k,), valid positions only, rows first (as pytorch-msssim)."""
+    channels, size = images.shape[1], window.numel()
+    taps = window.to(images.dtype)
+    rows = F.conv2d(images, taps.view(1, 1, size, 1).expand(channels, 1, size, 1), groups=channels)
+    return F.conv2d(rows, taps.view(1, 1, 1, size).expand(channels, 1, 1, size), groups=channels)
+
+
+class TargetSsim:
+    """SSIM of renders against one batch of targets (B, 3, H, W), the targets' window statistics
+    computed once: the objective compares two renders (static, dynamic) with the same targets.
+
+    The same formula as :func:`ssim` (Wang et al. 2004, data range 1), which it equals to float
+    rounding (tested); one grouped convolution of [x, x^2, x y] per render instead of five.
+    """
+
+    def __init__(self, target: Tensor) -> None:
+        self.window = gaussian_window()
+        self.target = target
+        mu, second = window_means(torch.cat([target, target * target], 1), self.window).chunk(2, 1)
+        self.mu, self.mu_sq = mu, mu.square()
+        self.variance = second - self.mu_sq
+
+    def __call__(self, render: Tensor) -> Tensor:
+        """(B,) SSIM of renders (B, 3, H, W) against the targets."""
+        stats = torch.cat([render, render * render, render * self.target], 1)
+        mu, second, cross = window_means(stats, self.window).chunk(3, 1)
+        mu_sq, mu_mu = mu.square(), mu * self.mu
+        c1, c2 = SSIM_K1**2, SSIM_K2**2
+        cs = (2 * (cross - mu_mu) + c2) / ((second - mu_sq) + self.variance + c2)
+        ssim_map = ((2 * mu_mu + c1) / (mu_sq + self.mu_sq + c1)) * cs
+        return ssim_map.flatten(2).mean(-1).mean(1)
+
+
+def psnr(x: Tensor, y: Tensor, pixel_share: Tensor | None = None) -> Tensor:
+    """(B,) PSNR in dB of images in [0, 1]; +inf for identical images. ``pixel_share`` (B,): crops'
+    shares of their frames' pixels, for the PSNR of the frames (the same outside the crops)."""
     mse = (x - y).square().flatten(1).mean(1)
+    if pixel_share is not None:
+        mse = mse * pixel_share
     return torch.where(mse > 0, -10.0 * torch.log10(mse), torch.full_like(mse, math.inf))
 
 
-def silhouette(alpha: Tensor, mask: Tensor) -> Tensor:
-    """(B,) mean over pixels of |A - m|: accumulated alphas (B, 1, H, W) against masks (B, 1, H, W).
+def silhouette(alpha: Tensor, mask: Tensor, pixel_share: Tensor | None = None) -> Tensor:
+    """(B,) mean over pixels of |A - m|: accumulated alphas (B, 1, H, W) against masks (B, 1, H, W)
+    (of the full frames for crops with ``pixel_share`` (B,), as :func:`psnr`).
 
     On white a semi-transparent fringe outside the mask costs nothing in the photometric terms;
     here it costs its opacity, and a hole inside the mask its transparency.
     """
-    return (alpha - mask).abs().flatten(1).mean(1)
+    mean = (alpha - mask).abs().flatten(1).mean(1)
+    return mean if pixel_share is None else mean * pixel_share
 
 
-def image_losses(render: Tensor, target: Tensor, lpips=None) -> dict[str, Tensor]:
-    """Per-image terms (each (B,)) between renders and targets (B, 3, H, W)."""
+def image_losses(
+    render: Tensor, target: Tensor, lpips=None, area: Tensor | None = None, target_ssim: TargetSsim | None = None
+) -> dict[str, Tensor]:
+    """Per-image terms (each (B,)) between renders and targets (B, 3, H, W).
+
+    ``area``: (B, 2) each image's share of its full frame's pixels and SSIM windows when it is a
+    crop (:mod:`pghm.train.person_crop`): the terms are then the full frame's. ``target_ssim``:
+    the targets' SSIM statistics when already computed."""
     terms = {
         "l1": (render - target).abs().flatten(1).mean(1),
-        "dssim": 1.0 - ssim(render, target),
+        "dssim": 1.0 - (target_ssim or TargetSsim(target))(render),
     }
     if lpips is not None:
         terms["lpips"] = lpips(render, target)
+    if area is not None:
+        terms = {key: value * area[:, 1 if key == "dssim" else 0] for key, value in terms.items()}
     return terms
 
 
@@ -86,15 +146,18 @@ def objective(
     regularizer: Tensor,
     weights: LossWeights = LossWeights(),
     lpips=None,
+    area: Tensor | None = None,
 ) -> tuple[Tensor, dict[str, float]]:
-    """The paper's loss on both renders (B, 3, H, W), averaged over the batch.
+    """The paper's loss on both renders (B, 3, H, W), averaged over the batch (crops: ``area``
+    as in :func:`image_losses`).
 
     Returns the scalar loss and a dict of its terms for logging.
     """
     total = weights.regularizer * regularizer
     log = {"reg": float(regularizer.detach())}
+    target_ssim = TargetSsim(target)
     for name, render in (("s", static_render), ("d", dynamic_render)):
-        terms = image_losses(render, target, lpips)
+        terms = image_losses(render, target, lpips, area, target_ssim)
         total = total + weights.l1 * terms["l1"].mean() + weights.ssim * terms["dssim"].mean()
         if "lpips" in terms:
             total = total + weights.lpips * terms["lpips"].mean()

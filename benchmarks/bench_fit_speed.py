@@ -1,0 +1,259 @@
+"""Where ``pghm fit``'s time goes, per part, and what a busy core beside it costs.
+
+Each measurement is a ``pghm fit --profile`` child process (docs/training.md, "Speed"), so it
+starts as a user's would (thread policy included) and its table is the fit's own:
+
+- breakdown (default): short fits (``--steps`` stage 1, stage 2 and settling steps per frame),
+  ``--repeats`` of them; per part, the median CPU and wall seconds per step of each phase (a
+  settling step is one image's), and the default fit's time they extrapolate to;
+- ``--full``: the default fit, once, its whole table and wall time; with ``--busy`` beside a
+  busy loop (``python -c "while True: pass"``, started :data:`BUSY_WARMUP_S` before, so the
+  load average the fit starts under shows it);
+- ``--policies``: beside a busy loop, short fits under each thread setting of :data:`POLICIES`,
+  interleaved ``--repeats`` times: median stage-2 seconds per step and its ratio to the first;
+- ``--held-check AVATAR``: the subject's held-out frames after :data:`TRACK_STEPS` steps of pose
+  refinement with the network run at every step and with its maps held (the settling's way).
+
+    python benchmarks/bench_fit_speed.py SUBJECT [SUBJECT ...] [--steps 5 10 2] [--repeats 3]
+                                         [--threads 1] [--full] [--busy] [--policies] [--label NAME]
+                                         [--held-check AVATAR]
+
+Prints the tables and writes benchmarks/results/bench_fit_speed[_NAME].json. Every row records
+the load averages it ran under: on a shared machine the wall times are what others left, the
+CPU seconds closer to the work itself.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from common import ROOT, load_average, print_table, write_json
+
+from pghm.train.fit import TRACK_STEPS
+
+PGHM = [sys.executable, "-m", "pghm.cli.main"]
+PRIOR = ROOT / "assets" / "prior.pt"
+BUSY_WARMUP_S = 60
+"""Seconds the busy loop runs before a fit starts: the one-minute load average then reads about
+0.6 of it, above the thread policy's threshold of a busy core."""
+HELD_BATCH = 8
+"""Frames refined together with the network's maps held: one evaluation of the maps serves them all."""
+POLICIES = {
+    "spin, 2 threads": {"OMP_WAIT_POLICY": "", "OMP_NUM_THREADS": "2"},
+    "passive, 2 threads": {"OMP_WAIT_POLICY": "PASSIVE", "OMP_NUM_THREADS": "2"},
+    "passive, 1 thread": {"OMP_WAIT_POLICY": "PASSIVE", "OMP_NUM_THREADS": "1"},
+    "default policy": {},
+}
+"""Thread settings compared beside a busy core. An empty OMP_WAIT_POLICY is libgomp's own
+default (spin a while, then sleep), which pghm replaces only when the variable is absent."""
+STAGES = ("stage 1", "stage 2", "pose settling")
+DEFAULT_STEPS = {"stage 1": 50, "stage 2": 450}
+
+
+def run_fit(subject: Path, out: Path, options: list[str], env: dict[str, str]) -> dict:
+    """``pghm fit SUBJECT`` with ``options`` and ``--profile``: its profile record, wall time and load."""
+    profile = out.with_suffix(".json")
+    command = [*PGHM, "fit", str(subject), "--prior", str(PRIOR), "--out", str(out), "--profile", str(profile)]
+    child_env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "OMP_NUM_THREADS")} | env
+    child_env["PYTHONPATH"] = str(ROOT)
+    load = load_average()
+    started = time.perf_counter()
+    result = subprocess.run([*command, *options], env=child_env, capture_output=True, text=True, check=False)
+    if result.returncode != 0:
+        raise RuntimeError(f"pghm fit failed ({result.returncode}):\n{result.stderr[-1500:]}")
+    record = json.loads(profile.read_text())
+    record["process_s"] = round(time.perf_counter() - started, 1)
+    record["load_before"] = round(load, 2)
+    out.unlink(missing_ok=True)
+    profile.unlink()
+    return record
+
+
+def phase_seconds(record: dict, phase: str, kind: str) -> dict[str, float]:
+    return {part: value[kind] for part, value in record["phases"].get(phase, {}).items()}
+
+
+def training_images(subject: Path) -> int:
+    return len(json.loads((subject / "splits.json").read_text())["train"])
+
+
+def breakdown(subject: Path, work: Path, steps: list[int], repeats: int, threads: int) -> dict:
+    """Per part and phase, median seconds per step (per image-step for the settling) of short fits
+    on ``threads`` threads (the work itself; :func:`policies` measures the threads)."""
+    stage1, stage2, track = steps
+    options = ["--stage1-steps", str(stage1), "--stage2-steps", str(stage2), "--track-steps", str(track)]
+    env = {"OMP_NUM_THREADS": str(threads)}
+    records = [run_fit(subject, work / f"b{i}.pt", options, env) for i in range(repeats)]
+    per_step = {"stage 1": stage1, "stage 2": stage2, "pose settling": track * training_images(subject)}
+    table = {}
+    for kind in ("cpu_s", "wall_s"):
+        for phase, count in per_step.items():
+            if not count:
+                continue
+            parts = {p for r in records for p in r["phases"].get(phase, {})}
+            table[kind, phase] = {
+                part: statistics.median(phase_seconds(r, phase, kind).get(part, 0.0) for r in records) / count
+                for part in sorted(parts)
+            }
+    return {
+        "subject": subject.name,
+        "steps": dict(zip(STAGES, steps)),
+        "threads": records[0]["threads"],
+        "load_average": [r["load_before"] for r in records],
+        "per_step": {f"{phase} {kind}": parts for (kind, phase), parts in table.items()},
+    }
+
+
+def print_breakdown(row: dict) -> None:
+    phases = [p for p in STAGES if f"{p} cpu_s" in row["per_step"]]
+    parts = sorted({part for key in row["per_step"] for part in row["per_step"][key]})
+    lines = []
+    for part in [*parts, "total"]:
+        line = {"part": part}
+        for phase in phases:
+            for kind in ("cpu_s", "wall_s"):
+                values = row["per_step"][f"{phase} {kind}"]
+                line[f"{phase} {kind[:-2]}"] = sum(values.values()) if part == "total" else values.get(part, 0.0)
+        lines.append(line)
+    print(f"\n{row['subject']}: seconds per step ({row['threads']} threads, load {row['load_average']})")
+    print_table(lines)
+
+
+def with_busy_loop(work):
+    """Run ``work()`` beside a busy loop started :data:`BUSY_WARMUP_S` before; stop the loop after."""
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        time.sleep(BUSY_WARMUP_S)
+        return work()
+    finally:
+        busy.kill()
+        busy.wait()
+
+
+def full(subject: Path, work: Path, busy: bool, threads: int | None) -> dict:
+    """The default fit, whole, on ``threads`` threads (None: the thread policy's choice)."""
+    env = {"OMP_NUM_THREADS": str(threads)} if threads else {}
+    run = (lambda: run_fit(subject, work / "full.pt", [], env))
+    record = with_busy_loop(run) if busy else run()
+    return {"subject": subject.name, "busy_loop": busy, **record}
+
+
+def policies(subject: Path, work: Path, steps: list[int], repeats: int) -> dict:
+    """Median stage-2 wall seconds per step under each of :data:`POLICIES`, beside a busy loop."""
+    stage1, stage2, _ = steps
+    options = ["--stage1-steps", str(stage1), "--stage2-steps", str(stage2), "--track-steps", "0"]
+
+    def sweep() -> dict[str, list[dict]]:
+        runs: dict[str, list[dict]] = {name: [] for name in POLICIES}
+        for i in range(repeats):
+            for name, env in POLICIES.items():
+                runs[name].append(run_fit(subject, work / f"p{i}.pt", options, env))
+        return runs
+
+    runs = with_busy_loop(sweep)
+    rows = []
+    for name, records in runs.items():
+        wall = [sum(phase_seconds(r, "stage 2", "wall_s").values()) / stage2 for r in records]
+        cpu = [sum(phase_seconds(r, "stage 2", "cpu_s").values()) / stage2 for r in records]
+        rows.append(
+            {
+                "policy": name,
+                "threads": records[0]["threads"],
+                "wall_s_per_step": statistics.median(wall),
+                "cpu_s_per_step": statistics.median(cpu),
+                "load": [r["load_before"] for r in records],
+            }
+        )
+    for row in rows:
+        row["wall_ratio"] = row["wall_s_per_step"] / rows[0]["wall_s_per_step"]
+    return {"subject": subject.name, "busy_loop": True, "steps": steps, "rows": rows}
+
+
+def held_check(avatar: Path, subject: Path, steps: int) -> dict:
+    """Held-out PSNR / SSIM after refining each test frame's pose for ``steps`` steps with the network
+    run at every step (``pghm eval --refine-poses``, two frames at a time, then eight) and with its
+    maps held, eight at a time (the fit's settling, :class:`pghm.train.pose_refine.HeldAppearance`):
+    what holding them costs the alignment, on frames no fit saw."""
+    import torch
+
+    from pghm.train import pose_refine
+    from pghm.train.evaluate import evaluate
+
+    torch.set_num_threads(1)
+    original = pose_refine.refine_poses
+    rows = []
+    for held, batch in ((False, pose_refine.IMAGES_PER_BATCH), (False, HELD_BATCH), (True, HELD_BATCH)):
+        pose_refine.refine_poses = functools.partial(original, hold_appearance=held, batch=batch)
+        try:
+            started = time.process_time()
+            result = evaluate(avatar, subject, refine_poses=steps)
+            seconds = time.process_time() - started
+        finally:
+            pose_refine.refine_poses = original
+        summary = result.summary()
+        rows.append(
+            {
+                "network": "held" if held else "run every step",
+                "frames at a time": batch,
+                "psnr": summary["psnr"],
+                "ssim": summary["ssim"],
+                "cpu_s": round(seconds, 1),
+            }
+        )
+    return {"subject": subject.name, "avatar": avatar.name, "steps": steps, "rows": rows}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("subjects", nargs="+", type=Path)
+    parser.add_argument("--steps", nargs=3, type=int, default=[5, 10, 2], metavar=("STAGE1", "STAGE2", "TRACK"))
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument(
+        "--threads", type=int, default=None, help="threads of the fits (default: 1 in the breakdown, else the policy's)"
+    )
+    parser.add_argument("--full", action="store_true", help="the default fit, whole")
+    parser.add_argument("--busy", action="store_true", help="with --full: beside a busy loop")
+    parser.add_argument("--policies", action="store_true", help="thread settings beside a busy loop")
+    parser.add_argument("--label", default=None, help="results file suffix")
+    parser.add_argument(
+        "--held-check", type=Path, default=None, metavar="AVATAR",
+        help="refine the held-out poses of the (one) subject against AVATAR with the network run and held",
+    )
+    args = parser.parse_args()
+    payload: dict = {"breakdown": [], "full": [], "policies": [], "held_check": []}
+    with tempfile.TemporaryDirectory() as temporary:
+        work = Path(temporary)
+        for subject in args.subjects:
+            if args.held_check:
+                result = held_check(args.held_check, subject, TRACK_STEPS)
+                print(f"\n{subject.name}: held-out frames after {TRACK_STEPS} refinement steps")
+                print_table(result["rows"])
+                payload["held_check"].append(result)
+            elif args.policies:
+                result = policies(subject, work, args.steps, args.repeats)
+                print(f"\n{subject.name}: stage 2 beside a busy loop")
+                print_table(result["rows"])
+                payload["policies"].append(result)
+            elif args.full:
+                result = full(subject, work, args.busy, args.threads)
+                print(f"\n{subject.name}: default fit{' beside a busy loop' if args.busy else ''}, "
+                      f"{result['wall_s']:.0f} s wall, {result['cpu_s']:.0f} s CPU, load {result['load_average']}")
+                payload["full"].append(result)
+            else:
+                result = breakdown(subject, work, args.steps, args.repeats, args.threads or 1)
+                print_breakdown(result)
+                payload["breakdown"].append(result)
+    write_json("bench_fit_speed" + (f"_{args.label}" if args.label else ""), payload)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,243 @@
+"""What makes ``pghm fit`` cheaper must not change what it computes: the profile accounts for every
+moment once, a crop renders and scores exactly as its frame, the thread policy counts free cores,
+and the pose settling's held appearance is the network's at the starting pose."""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from pghm.cli.threads import intra_op_threads
+from pghm.splat import Camera, render
+from pghm.train import profile
+from pghm.train.data import TrainingData
+from pghm.train.losses import objective, psnr, silhouette
+from pghm.train.person_crop import Crop, area_tensor, crop_size, mask_box, place
+
+
+def _sleep_backward(seconds: float):
+    """An identity whose backward pass sleeps ``seconds``: a stand-in of known cost."""
+
+    class Sleep(torch.autograd.Function):
+        @staticmethod
+        def forward(ctx, x):
+            return x.clone()
+
+        @staticmethod
+        def backward(ctx, grad):
+            time.sleep(seconds)
+            return grad
+
+    return Sleep.apply
+
+
+def test_the_profile_charges_every_moment_to_one_part():
+    started = time.perf_counter()
+    with profile.profiled() as timing:
+        with profile.phase("stage 1"):
+            with profile.part(profile.DATA):
+                time.sleep(0.02)
+            with profile.part(profile.LOSSES):
+                time.sleep(0.01)
+                with profile.part(profile.GUARD):  # nested: its time is the guard's, not the losses'
+                    time.sleep(0.02)
+            x = torch.ones(3, requires_grad=True)
+            gaussians = _sleep_backward(0.02)(x * 2)  # the "network" behind the Gaussians
+            image = _sleep_backward(0.03)(gaussians * 3)  # the "splatter"
+            profile.mark_backward([image], [gaussians])
+            with profile.part(profile.LOSSES_BACKWARD):
+                image.sum().backward()
+        time.sleep(0.01)
+    elapsed = time.perf_counter() - started
+    wall, cpu = timing.totals()
+    # Exclusive accounting: the parts sum to the total (float summation only), which the
+    # independent clock around the block bounds.
+    assert math.fsum(timing.wall.values()) == pytest.approx(wall, rel=1e-12)
+    assert math.fsum(timing.cpu.values()) == pytest.approx(cpu, rel=1e-12)
+    assert 0.1 <= wall <= elapsed
+    # Sleeps are lower bounds of the parts they ran in.
+    assert timing.wall["stage 1", profile.DATA] >= 0.02
+    assert timing.wall["stage 1", profile.GUARD] >= 0.02
+    assert timing.wall["stage 1", profile.LOSSES] >= 0.01
+    assert timing.wall["stage 1", profile.SPLAT_BACKWARD] >= 0.03
+    assert timing.wall["stage 1", profile.NETWORK_BACKWARD] >= 0.02
+    assert timing.wall["setup", profile.OTHER] >= 0.01
+    record = timing.record()
+    summed = sum(v["wall_s"] for parts in record["phases"].values() for v in parts.values())
+    assert summed == pytest.approx(record["wall_s"], abs=1e-3 * len(profile.PARTS) * 2)
+    assert timing.table().splitlines()[-1].split()[0] == "total"
+
+
+def test_without_a_profile_the_marks_do_nothing():
+    with profile.part(profile.DATA), profile.phase("stage 1"):
+        x = torch.ones(2, requires_grad=True)
+        y = x * 2
+        profile.mark_backward([y], [x])
+        assert not y._backward_hooks
+
+
+@pytest.mark.parametrize(
+    "cores, load, threads",
+    [(2, 0.0, 2), (2, 0.49, 2), (2, 0.5, 1), (2, 1.0, 1), (2, 1.6, 1), (2, 9.3, 1), (16, 3.0, 13), (1, 0.0, 1)],
+)
+def test_the_thread_policy_leaves_the_busy_cores_alone(cores, load, threads):
+    assert intra_op_threads(cores, load) == threads
+
+
+def _scene(seed: int = 0):
+    generator = torch.Generator().manual_seed(seed)
+    count = 60
+    means = torch.rand(count, 3, generator=generator, dtype=torch.float64) * torch.tensor([0.8, 0.8, 0.5])
+    means = means + torch.tensor([-0.4, -0.4, 2.0], dtype=torch.float64)
+    scales = 0.01 + 0.04 * torch.rand(count, generator=generator, dtype=torch.float64)
+    colors = torch.rand(count, 3, generator=generator, dtype=torch.float64)
+    opacities = 0.2 + 0.7 * torch.rand(count, generator=generator, dtype=torch.float64)
+    return means, scales, colors, opacities
+
+
+def test_a_cropped_camera_renders_the_crop_of_the_full_render():
+    camera = Camera(fx=70.0, fy=72.0, cx=33.5, cy=22.25, width=64, height=48, world_to_camera=torch.eye(4))
+    crop = Crop(x0=13, y0=7, width=30, height=25, frame_width=64, frame_height=48)
+    full = render(*_scene(), camera, background=(0.2, 0.3, 0.4))
+    part = render(*_scene(), crop.camera(camera), background=(0.2, 0.3, 0.4))
+    box = (slice(7, 32), slice(13, 43))
+    assert full.alpha[box].sum() > 10  # the crop sees the scene
+    # The same pixels in float64: only the rounding of (j + 0.5) - u with the shifted cx differs.
+    torch.testing.assert_close(part.rgb, full.rgb[box], atol=1e-9, rtol=0)
+    torch.testing.assert_close(part.alpha, full.alpha[box], atol=1e-9, rtol=0)
+
+
+def test_a_crops_loss_is_its_frames_when_the_render_outside_is_background():
+    generator = torch.Generator().manual_seed(1)
+    width, height, background = 64, 48, torch.tensor([0.2, 0.5, 0.7])
+    crops = [Crop(5, 3, 40, 30, width, height), Crop(20, 15, 40, 30, width, height)]
+    frames = {name: background[None, :, None, None].repeat(2, 1, height, width) for name in ("s", "d", "t")}
+    alphas = {name: torch.zeros(2, 1, height, width) for name in ("s", "d", "m")}
+    # The frame's SSIM windows that see the person (centres within 5 pixels of it) must be the
+    # crop's (centres 5 pixels inside its edge): 10 pixels of flat background around the person.
+    margin = 10
+    for b, crop in enumerate(crops):
+        inner = (slice(crop.y0 + margin, crop.y0 + 30 - margin), slice(crop.x0 + margin, crop.x0 + 40 - margin))
+        for name in frames:
+            frames[name][(b, slice(None), *inner)] = torch.rand(3, 10, 20, generator=generator)
+        for name in alphas:
+            alphas[name][(b, slice(None), *inner)] = torch.rand(1, 10, 20, generator=generator)
+    regularizer = torch.tensor(0.3)
+
+    def cut(images):
+        boxes = [c.image(images[b].permute(1, 2, 0).numpy()) for b, c in enumerate(crops)]
+        return torch.stack([torch.from_numpy(box).permute(2, 0, 1) for box in boxes])
+
+    area = area_tensor(crops)
+    whole, _ = objective(frames["s"], frames["d"], frames["t"], regularizer)
+    cropped, _ = objective(cut(frames["s"]), cut(frames["d"]), cut(frames["t"]), regularizer, area=area)
+    torch.testing.assert_close(cropped, whole, rtol=1e-5, atol=0)
+    whole_silhouette = silhouette(alphas["s"], alphas["m"])
+    cropped_silhouette = silhouette(cut(alphas["s"]), cut(alphas["m"]), area[:, 0])
+    torch.testing.assert_close(cropped_silhouette, whole_silhouette, rtol=1e-5, atol=0)
+    torch.testing.assert_close(psnr(cut(frames["d"]), cut(frames["t"]), area[:, 0]), psnr(frames["d"], frames["t"]))
+
+
+def test_crop_boxes_hold_every_mask_in_one_size():
+    mask = np.zeros((48, 64), dtype=np.float32)
+    mask[10:20, 30:41] = 1.0
+    assert mask_box(mask) == (30, 10, 41, 20)
+    assert mask_box(np.zeros((4, 4))) is None
+    size = crop_size([(30, 10, 41, 20), (0, 0, 5, 30)], 64, 48, margin=4)
+    assert size == (19, 38)
+    for box in [(30, 10, 41, 20), (0, 0, 5, 30), (60, 40, 64, 48)]:
+        crop = place(box, size, 64, 48)
+        assert 0 <= crop.x0 <= box[0] and box[2] <= crop.x0 + crop.width <= 64
+        assert 0 <= crop.y0 <= box[1] and box[3] <= crop.y0 + crop.height <= 48
+    assert crop_size([(0, 0, 64, 48)], 64, 48, margin=16) == (64, 48)
+
+
+def test_training_samples_are_crops_of_their_frames(tiny_dataset):
+    subject = tiny_dataset / "subject_000"
+    whole, cropped = TrainingData(subject), TrainingData(subject, crop_margin=3)
+    sizes = set()
+    for index in whole.images[0].tolist():
+        full, crop = whole.load(0, index), cropped.load(0, index)
+        box = crop.crop
+        sizes.add((box.width, box.height))
+        window = (slice(None), slice(box.y0, box.y0 + box.height), slice(box.x0, box.x0 + box.width))
+        assert torch.equal(crop.image, full.image[window]) and torch.equal(crop.mask, full.mask[window])
+        assert torch.count_nonzero(crop.mask) == torch.count_nonzero(full.mask)  # all of the person is inside
+        assert float(crop.camera.cx) == pytest.approx(float(full.camera.cx) - box.x0)
+        assert float(crop.camera.cy) == pytest.approx(float(full.camera.cy) - box.y0)
+        assert torch.equal(crop.camera.world_to_camera, full.camera.world_to_camera)
+    assert len(sizes) == 1  # one size per subject: a group renders as one batch
+
+
+def test_held_appearance_is_the_networks_at_the_starting_pose(tiny_dataset):
+    from conftest import TINY_MODEL
+
+    from pghm.body.pose import BodyPose
+    from pghm.model import PGHM, ModelConfig
+    from pghm.train.loop import LoopConfig
+    from pghm.train.prior import GeometryCache
+    from pghm.train.pose_refine import HeldAppearance
+
+    data = TrainingData(tiny_dataset / "subject_000")
+    torch.manual_seed(0)
+    model = PGHM(ModelConfig(**TINY_MODEL), num_identities=1).eval()
+    geometry = GeometryCache(data, model.config, None)(0)
+    latent = model.decode_identity(0).detach()
+    samples = data.load_group(0, data.images[0][:2].tolist())
+    held = HeldAppearance(model, latent, None, LoopConfig().loss, None)
+    pose = BodyPose(torch.stack([s.rotations for s in samples]), torch.stack([s.translation for s in samples]))
+    centres = torch.stack([s.camera.centre.float() for s in samples])
+    index = torch.arange(len(samples))
+    with torch.no_grad():
+        exact = model(latent, geometry, pose, centres, index)
+        first = held.avatar(0, geometry, pose, centres, index)
+    for name in ("means", "scales", "colors", "opacities"):
+        torch.testing.assert_close(getattr(first.dynamic, name), getattr(exact.dynamic, name), rtol=0, atol=0)
+        torch.testing.assert_close(getattr(first.static, name), getattr(exact.static, name), rtol=0, atol=0)
+    # A moved pose moves the Gaussians through the skinning, their colours stay held.
+    turned = BodyPose(pose.rotations + 0.05, pose.translation)
+    with torch.no_grad():
+        moved = held.avatar(0, geometry, turned, centres, index)
+    assert not torch.allclose(moved.dynamic.means, first.dynamic.means)
+    assert torch.equal(moved.dynamic.colors, first.dynamic.colors)
+
+
+def test_the_losses_ssim_is_pytorch_msssims_with_the_targets_statistics_shared():
+    from pghm.train.losses import TargetSsim, ssim
+
+    generator = torch.Generator().manual_seed(2)
+    renders = torch.rand(2, 2, 3, 40, 31, generator=generator, requires_grad=True)
+    target = torch.rand(2, 3, 40, 31, generator=generator)
+    shared = TargetSsim(target)
+    for render in renders:
+        reference = ssim(render, target)
+        value = shared(render)
+        # Float32 rounding of the same sums in another grouping: a few ulps of values near 1.
+        torch.testing.assert_close(value, reference, rtol=0, atol=1e-6)
+        (expected,) = torch.autograd.grad(reference.sum(), render)
+        (found,) = torch.autograd.grad(value.sum(), render)
+        torch.testing.assert_close(found, expected, rtol=1e-4, atol=1e-9)
+
+
+def test_the_wait_policy_is_passive_unless_the_user_chose_one(monkeypatch):
+    from pghm.cli.threads import WAIT_POLICY, set_wait_policy
+
+    monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
+    set_wait_policy()
+    assert os.environ["OMP_WAIT_POLICY"] == WAIT_POLICY == "PASSIVE"
+    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    set_wait_policy()
+    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
+
+
+def test_a_users_thread_count_wins(monkeypatch):
+    from pghm.cli.threads import set_threads
+
+    before = torch.get_num_threads()
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    assert set_threads() == before == torch.get_num_threads()
