@@ -241,3 +241,83 @@ def test_a_users_thread_count_wins(monkeypatch):
     before = torch.get_num_threads()
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     assert set_threads() == before == torch.get_num_threads()
+
+
+def test_blended_skinning_is_the_per_bone_sum():
+    """One (N, J) x (J, 12 B) product equals the definition M[b, n] = sum_j W[n, j] (A[b, j] - I)[:3]
+    summed bone by bone in float64 (rounding only: 1e-12 on entries of order one)."""
+    from pghm.body.skinning import blend_transform_deltas, rotate_directions, skin_directions
+
+    generator = torch.Generator().manual_seed(3)
+    weights = torch.rand(7, 5, generator=generator, dtype=torch.float64)
+    weights = weights / weights.sum(1, keepdim=True)
+    transforms = torch.eye(4, dtype=torch.float64).repeat(3, 5, 1, 1)
+    transforms[..., :3, :] += 0.3 * torch.randn(3, 5, 3, 4, generator=generator, dtype=torch.float64)
+    reference = torch.zeros(3, 7, 3, 4, dtype=torch.float64)
+    for b in range(3):
+        for n in range(7):
+            for j in range(5):
+                reference[b, n] += weights[n, j] * (transforms[b, j, :3] - torch.eye(3, 4, dtype=torch.float64))
+    deltas = blend_transform_deltas(weights, transforms)
+    torch.testing.assert_close(deltas, reference, rtol=0, atol=1e-12)
+    directions = torch.randn(7, 3, generator=generator, dtype=torch.float64)
+    torch.testing.assert_close(
+        rotate_directions(directions, deltas[..., :3]), skin_directions(directions, weights, transforms), rtol=0, atol=0
+    )
+
+
+def test_a_coarse_sample_averages_its_pixels_and_scales_its_camera(tiny_dataset):
+    """The coarse image and mask are the means of 2 x 2 blocks (brute force), and the coarse camera
+    draws a Gaussian where the full one does, halved: the alpha-weighted centroids of one Gaussian's
+    renders agree. Sampling a Gaussian of a pixel's deviation moves its centroid by about
+    exp(-2 pi^2) of a pixel, but the splatter drops alpha below 1/255: the mass beyond radius
+    R = sigma sqrt(2 ln(255 o)) (o = 0.9: R = 3.29 sigma), a share q = 1 / (255 o) = 0.0044, cut
+    unevenly by the pixel grid moves a centroid by at most q R / (1 - q) = 0.0144 sigma; sigma is
+    2.1 pixels at full resolution (0.06 m at 2 m, fx 70), so 0.03 pixel each, 0.06 both. A wrong
+    pixel-centre convention would be off by half a pixel."""
+    from pghm.train.pose_refine import COARSE_FACTOR, coarse_sample
+
+    sample = TrainingData(tiny_dataset / "subject_000").load(0, 0)
+    coarse = coarse_sample(sample)
+    f = COARSE_FACTOR
+    height, width = sample.camera.height // f, sample.camera.width // f
+    assert (coarse.camera.width, coarse.camera.height) == (width, height)
+    for name in ("image", "mask"):
+        fine, small = getattr(sample, name), getattr(coarse, name)
+        for y, x in ((0, 0), (height - 1, width - 1), (height // 2, width // 3)):
+            block = fine[:, f * y : f * y + f, f * x : f * x + f]
+            torch.testing.assert_close(small[:, y, x], block.mean((1, 2)), rtol=0, atol=1e-6)
+
+    camera = Camera(fx=70.0, fy=72.0, cx=33.5, cy=22.25, width=64, height=48, world_to_camera=torch.eye(4))
+    small = coarse_sample(
+        type(sample)(0, 0, 0, torch.zeros(3, 48, 64), torch.zeros(1, 48, 64), camera, sample.rotations, sample.translation)
+    ).camera
+    gaussian = (
+        torch.tensor([[0.05, -0.03, 2.0]], dtype=torch.float64),
+        torch.tensor([0.06], dtype=torch.float64),
+        torch.ones(1, 3, dtype=torch.float64),
+        torch.tensor([0.9], dtype=torch.float64),
+    )
+
+    def centroid(cam: Camera) -> torch.Tensor:
+        alpha = render(*gaussian, cam).alpha
+        rows, columns = torch.meshgrid(
+            torch.arange(cam.height, dtype=torch.float64) + 0.5,
+            torch.arange(cam.width, dtype=torch.float64) + 0.5,
+            indexing="ij",
+        )
+        return torch.stack([(alpha * columns).sum(), (alpha * rows).sum()]) / alpha.sum()
+
+    torch.testing.assert_close(f * centroid(small), centroid(camera), rtol=0, atol=0.06)
+
+
+def test_the_dynamic_render_alone_stands_in_for_both():
+    """objective(None, d) is objective(d, d): the dynamic render's terms counted twice."""
+    generator = torch.Generator().manual_seed(4)
+    dynamic, target = torch.rand(2, 2, 3, 20, 24, generator=generator)
+    regularizer = torch.tensor(0.2)
+    alone, terms = objective(None, dynamic, target, regularizer)
+    both, _ = objective(dynamic, dynamic, target, regularizer)
+    torch.testing.assert_close(alone, both, rtol=1e-6, atol=0)
+    assert "l1_d" in terms and "l1_s" not in terms
+

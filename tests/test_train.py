@@ -313,6 +313,28 @@ def test_a_capture_fit_settles_its_pose_track_towards_the_true_poses(tiny_datase
     assert left[None] < 0.85 * left[0], left
 
 
+def test_coarse_settling_steps_run_no_network_and_leave_the_avatar(tiny_dataset, prior_file, tmp_path):
+    """Each batch's coarse steps evaluate the pose and view decoders once (the held maps), its fine
+    steps once each; the avatar's parameters stay as they were."""
+    from pghm.train.fit import POSE_LR, FitConfig
+    from pghm.train.pose_refine import refine_poses
+
+    avatar = tiny_avatar(tiny_dataset / "subject_000", prior_file, tmp_path / "a.pt", 2, 2)
+    data = TrainingData(tiny_dataset / "subject_000", split="test")
+    images = data.images[0][:2].tolist()
+    before = [p.detach().clone() for p in avatar.model.parameters()]
+    runs = {}
+    for coarse in (0, 3):
+        avatar.model.run_counts.clear()
+        refine_poses(
+            avatar, data, 5, FitConfig().stage2.loss, POSE_LR, images=images, progress=False, batch=2,
+            coarse_steps=coarse, dynamic_only=True,
+        )
+        runs[coarse] = avatar.model.run_counts["pose_decoder"], avatar.model.run_counts["view_decoder"]
+    assert runs == {0: (5, 5), 3: (1 + 2, 1 + 2)}
+    assert all(torch.equal(a, b) for a, b in zip(before, avatar.model.parameters()))
+
+
 def test_learning_rate_ten_times_too_high_leaves_no_nan(tiny_dataset, tmp_path, caplog):
     config = prior_config(steps=8)
     config.network_lr = 10.0

@@ -9,7 +9,7 @@ optimised together, with per-frame pose corrections when ``refine_poses``; the a
 them as its pose track (:mod:`pghm.train.pose_track`).
 Then, for poses stated noisier than the synthetic data's (a capture) whose frames stage 2 visits
 too rarely, the track is settled: every training frame's correction refined against its image
-with the avatar frozen (:mod:`pghm.train.pose_refine`; :func:`track_steps`).
+with the avatar frozen, coarse to fine (:mod:`pghm.train.pose_refine`; :func:`track_steps`).
 Both stages train on crops around the person (:mod:`pghm.train.person_crop`).
 Last, when ``detail`` has steps, a detail layer trains on the frozen avatar (:mod:`pghm.train.detail`).
 """
@@ -69,6 +69,11 @@ TRACK_STEPS = 30
 """Steps of each training frame's pose refinement that settles the pose track (:func:`track_steps`).
 Adam's first steps move every coordinate by about the learning rate, whatever its gradient, so
 the poses settle only after a few tens (docs/lab/defaults.md, "Fit: settling the pose track")."""
+
+TRACK_FINE_STEPS = 6
+"""The last of a frame's settling steps, which run the network at full resolution; the others are
+coarse (:mod:`pghm.train.pose_refine`): half the resolution, the network's maps held, a third of the
+time (docs/training.md, "Speed")."""
 
 TRACK_MIN_VISITS = 20
 """Stage 2 visits per training frame (its steps x images per step / training images) from which its
@@ -130,10 +135,14 @@ class FitConfig:
     split: str = "train"
     """The subject's split the avatar is fitted on (:data:`pghm.subject.ALL_SPLIT`: every
     image, as ``pghm capture --polish`` does to align the held-out frames' poses)."""
+    track_fine_steps: int = TRACK_FINE_STEPS
+    """Of the settling's steps per frame, the last ones that run the network at full resolution
+    (:data:`TRACK_FINE_STEPS`); the others are coarse. The settling scores the dynamic render alone,
+    the one the avatar is shown with."""
     hold_appearance: bool = False
-    """Settle the pose track with the network's maps held at each batch's starting poses
-    (:class:`pghm.train.pose_refine.HeldAppearance`): the skinning moves the Gaussians and no U-Net
-    runs per step; off, as it aligns worse (docs/training.md, "Speed")."""
+    """Settle the pose track with the network's maps held at each batch's starting poses at every
+    step (:class:`pghm.train.pose_refine.HeldAppearance`): no U-Net runs per step; off, as it aligns
+    worse (docs/training.md, "Speed")."""
     crop_margin: int | None = CROP_MARGIN
     """Train on each image cut to the person's box with this margin in pixels, the loss kept the
     full frame's (:mod:`pghm.train.person_crop`); None: whole frames."""
@@ -185,7 +194,7 @@ def track_steps(rotation_sigma: float, visits: float) -> int:
     the synthetic data's (``rotation_sigma`` radians > 2 degrees: a capture's) whose frames stage 2
     visits fewer than :data:`TRACK_MIN_VISITS` times each (``visits``), else 0. A synthetic subject's
     corrections are within stage 2's reach (the shipped avatar is unchanged), and so are those of a
-    short video; the settling's cost grows with the frames (about 7 s of one core per frame here)."""
+    short video; the settling's cost grows with the frames (docs/training.md, "Speed")."""
     return TRACK_STEPS if rotation_sigma > ESTIMATOR_ROTATION_SIGMA and visits < TRACK_MIN_VISITS else 0
 
 
@@ -233,6 +242,8 @@ def fit(
     config = config or FitConfig()
     if config.track_steps is not None and config.track_steps < 0:
         raise PghmError(f"track_steps must be >= 0, got {config.track_steps}")
+    if config.track_fine_steps < 0:
+        raise PghmError(f"track_fine_steps must be >= 0, got {config.track_fine_steps}")
     for name in ("latent_lr", "network_lr", "pose_lr", "detail_lr"):
         if getattr(config, name) is not None:
             check_learning_rate(name, getattr(config, name))
@@ -362,6 +373,8 @@ def fit(
                     progress=config.stage2.progress,
                     desc="fit: settle poses",
                     hold_appearance=config.hold_appearance,
+                    coarse_steps=max(config.track_steps - config.track_fine_steps, 0),
+                    dynamic_only=True,
                 )
             avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
         avatar.pose_track = move(learned_track(corrections, data), torch.device("cpu"))  # a record, as in the file

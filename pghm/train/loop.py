@@ -107,6 +107,9 @@ class AvatarObjective(nn.Module):
             identity map (personalisation), or None to decode bank latents (prior).
         corrections: per-frame pose corrections, or None.
         lpips: the LPIPS network, or None to leave the term out.
+        dynamic_only: render and score the dynamic set alone, its terms standing in for the
+            static set's (:func:`pghm.train.losses.objective`): what fits poses to a frozen
+            avatar, which is shown with its dynamic set, at half the splatting.
     """
 
     def __init__(
@@ -116,6 +119,7 @@ class AvatarObjective(nn.Module):
         corrections: PoseCorrections | None,
         weights: LossWeights,
         lpips: nn.Module | None,
+        dynamic_only: bool = False,
     ) -> None:
         super().__init__()
         self.model = model
@@ -123,6 +127,7 @@ class AvatarObjective(nn.Module):
         self.corrections = corrections
         self.weights = weights
         self.lpips = lpips
+        self.dynamic_only = dynamic_only
 
     @property
     def device(self) -> torch.device:
@@ -140,9 +145,10 @@ class AvatarObjective(nn.Module):
 
     def renders(
         self, samples: list[Sample], geometry: SubjectGeometry, backgrounds: Tensor | None = None
-    ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    ) -> tuple[Tensor | None, Tensor, Tensor | None, Tensor, Tensor]:
         """Static and dynamic renders (B, 3, H, W) of one identity's samples on white, or on
-        ``backgrounds`` (B, 3, H, W) when given; their accumulated alphas (B, 1, H, W); the regulariser."""
+        ``backgrounds`` (B, 3, H, W) when given; their accumulated alphas (B, 1, H, W); the regulariser.
+        The static render and alpha are None when :attr:`dynamic_only`."""
         with profile.part(profile.NETWORK_FORWARD):
             # One pose per distinct frame; the views of a frame share it.
             keys = [s.frame_key for s in samples]
@@ -160,16 +166,14 @@ class AvatarObjective(nn.Module):
         # Both sets of all B views in one batched render: (2B, H, W, 3).
         if len({(s.camera.width, s.camera.height) for s in samples}) > 1:
             raise DatasetError("the images of one subject must all have the same size")
+        sets = (out.dynamic,) if self.dynamic_only else (out.static, out.dynamic)
         cameras = Camera.from_matrices(
-            torch.stack([s.camera.K for s in samples] * 2).float(),
-            torch.stack([s.camera.world_to_camera for s in samples] * 2).float(),
+            torch.stack([s.camera.K for s in samples] * len(sets)).float(),
+            torch.stack([s.camera.world_to_camera for s in samples] * len(sets)).float(),
             samples[0].camera.width,
             samples[0].camera.height,
         )
-        both = [
-            torch.cat([getattr(out.static, f), getattr(out.dynamic, f)])
-            for f in ("means", "scales", "colors", "opacities")
-        ]
+        both = [torch.cat([getattr(g, f) for g in sets]) for f in ("means", "scales", "colors", "opacities")]
         with profile.part(profile.GUARD):
             finite = all(bool(torch.isfinite(t.detach()).all()) for t in both)
         if not finite:
@@ -178,13 +182,16 @@ class AvatarObjective(nn.Module):
             # which render refuses.
             poison = sum(t.sum() for t in both) * math.nan
             blank = poison.expand(len(samples), 3, samples[0].camera.height, samples[0].camera.width)
-            return blank, blank, blank[:, :1], blank[:, :1], out.regularizer + poison
+            static = None if self.dynamic_only else blank
+            return static, blank, None if static is None else blank[:, :1], blank[:, :1], out.regularizer + poison
         with profile.part(profile.SPLAT_FORWARD):
             drawn = render(*both, cameras, background=WHITE if backgrounds is None else BLACK)
             profile.mark_backward([drawn.rgb, drawn.alpha], both)
             images, alphas = drawn.rgb.permute(0, 3, 1, 2), drawn.alpha[:, None]
             if backgrounds is not None:
-                images = composite_render(images, alphas, torch.cat([backgrounds, backgrounds]))
+                images = composite_render(images, alphas, torch.cat([backgrounds] * len(sets)))
+        if self.dynamic_only:
+            return None, images, None, alphas, out.regularizer
         count = len(samples)
         return images[:count], images[count:], alphas[:count], alphas[count:], out.regularizer
 
@@ -206,9 +213,9 @@ class AvatarObjective(nn.Module):
 
     def _loss(
         self,
-        static: Tensor,
+        static: Tensor | None,
         dynamic: Tensor,
-        static_alpha: Tensor,
+        static_alpha: Tensor | None,
         dynamic_alpha: Tensor,
         regularizer: Tensor,
         samples: list[Sample],
@@ -216,12 +223,14 @@ class AvatarObjective(nn.Module):
         mask: Tensor,
     ) -> tuple[Tensor, dict[str, float]]:
         """The loss of renders (B, 3, H, W) and alphas (B, 1, H, W) against targets and masks, and its
-        terms; those of the full frames when the samples are crops."""
-        area = area_tensor([s.crop for s in samples]).to(static.device) if any(s.crop for s in samples) else None
+        terms; those of the full frames when the samples are crops. A static render of None: the
+        dynamic one stands in for it (:attr:`dynamic_only`)."""
+        area = area_tensor([s.crop for s in samples]).to(dynamic.device) if any(s.crop for s in samples) else None
         share = area[:, 0] if area is not None else None
         loss, terms = objective(static, dynamic, target, regularizer, self.weights, self.lpips, area)
         if self.weights.silhouette > 0:
-            sil_s, sil_d = silhouette(static_alpha, mask, share).mean(), silhouette(dynamic_alpha, mask, share).mean()
+            sil_d = silhouette(dynamic_alpha, mask, share).mean()
+            sil_s = sil_d if static_alpha is None else silhouette(static_alpha, mask, share).mean()
             loss = loss + self.weights.silhouette * (sil_s + sil_d)
             terms.update(sil_s=float(sil_s.detach()), sil_d=float(sil_d.detach()), loss=float(loss.detach()))
         if self.corrections is not None and self.weights.pose_prior > 0:

@@ -140,7 +140,7 @@ def image_losses(
 
 
 def objective(
-    static_render: Tensor,
+    static_render: Tensor | None,
     dynamic_render: Tensor,
     target: Tensor,
     regularizer: Tensor,
@@ -149,18 +149,21 @@ def objective(
     area: Tensor | None = None,
 ) -> tuple[Tensor, dict[str, float]]:
     """The paper's loss on both renders (B, 3, H, W), averaged over the batch (crops: ``area``
-    as in :func:`image_losses`).
+    as in :func:`image_losses`). ``static_render`` None: the dynamic render's terms count twice,
+    standing in for the static one's (the same loss when the two renders are equal).
 
     Returns the scalar loss and a dict of its terms for logging.
     """
     total = weights.regularizer * regularizer
     log = {"reg": float(regularizer.detach())}
     target_ssim = TargetSsim(target)
-    for name, render in (("s", static_render), ("d", dynamic_render)):
+    renders = (("d", dynamic_render),) if static_render is None else (("s", static_render), ("d", dynamic_render))
+    count = 3 - len(renders)  # each render's terms count this many times: 2 - 1 = 1 for both renders
+    for name, render in renders:
         terms = image_losses(render, target, lpips, area, target_ssim)
-        total = total + weights.l1 * terms["l1"].mean() + weights.ssim * terms["dssim"].mean()
+        total = total + count * weights.l1 * terms["l1"].mean() + count * weights.ssim * terms["dssim"].mean()
         if "lpips" in terms:
-            total = total + weights.lpips * terms["lpips"].mean()
+            total = total + count * weights.lpips * terms["lpips"].mean()
         log.update({f"{key}_{name}": float(value.detach().mean()) for key, value in terms.items()})
     log["loss"] = float(total.detach())
     return total, log

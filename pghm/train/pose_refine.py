@@ -18,13 +18,21 @@ alone, so the frames are refined a batch at a time, each batch for all its steps
 rows: a batch's steps leave the other frames' rows and moments untouched), and only one batch
 of images is in memory. Appearance is untouched: the latent and every network weight stay as
 fitted.
+
+Coarse to fine (``coarse_steps``, the fit's settling): a frame's first steps render at half the
+image's resolution (:func:`coarse_sample`; a small image keeps its own) with the network's maps held at the batch's starting
+poses (:class:`HeldAppearance`), which costs the skinning, the splatter and the loss and no
+U-Net; its last steps run the network at full resolution, so the poses end aligned as a fully
+live pass aligns them (docs/training.md, "Speed").
 """
 
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 from tqdm import tqdm
 
@@ -35,10 +43,12 @@ from pghm.model.geometry import SubjectGeometry
 from pghm.model.pghm import AvatarOutput, IdentityFeatures, PoseBranch
 from pghm.train import profile
 from pghm.train.background import TRAINING_BACKGROUND, draw_backgrounds
-from pghm.train.data import PoseCorrections, TrainingData
+from pghm.splat import Camera
+from pghm.train.data import PoseCorrections, Sample, TrainingData
 from pghm.train.loop import AvatarObjective
 from pghm.train.losses import LossWeights
 from pghm.train.optim import LazyAdam
+from pghm.train.person_crop import Crop
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +56,13 @@ IMAGES_PER_BATCH = 2
 """Images rendered together in one forward pass (the fit's batch): memory, not the result."""
 REFINE_SEED_SALT = 0x7E57
 """Keeps the refinement's background draws apart from the fit's (same seed, same step)."""
+COARSE_FACTOR = 2
+"""A coarse step's image is this many times smaller on each side: a pose's error is an outline
+displaced by pixels, which half the resolution still shows, at a quarter of the pixels."""
+COARSE_MIN_SIDE = 64
+"""Smallest side of a coarse image, in pixels: below it the coarse steps keep the full resolution.
+A small image halved leaves the person a few SSIM windows across, whose gradients mislead the
+pose (the 64-pixel test subject's settled track ends further off)."""
 
 
 class HeldAppearance(AvatarObjective):
@@ -61,6 +78,8 @@ class HeldAppearance(AvatarObjective):
         super().__init__(*args, **kwargs)
         self._features: IdentityFeatures | None = None
         self._held: tuple[PoseBranch, Tensor] | None = None
+        self.holding = True
+        """False: the maps are the network's at each step's poses, as :class:`AvatarObjective`'s."""
 
     def release(self) -> None:
         self._held = None
@@ -68,6 +87,8 @@ class HeldAppearance(AvatarObjective):
     def avatar(
         self, identity: int, geometry: SubjectGeometry, pose: BodyPose, centres: Tensor, pose_index: Tensor
     ) -> AvatarOutput:
+        if not self.holding:
+            return super().avatar(identity, geometry, pose, centres, pose_index)
         model = self.model
         skinned = model.skin(geometry, pose)
         if self._held is None:
@@ -79,6 +100,33 @@ class HeldAppearance(AvatarObjective):
             self._held = (branch, view)
         branch, view = self._held
         return model.assemble(self._features, skinned.select(pose_index), branch, view, geometry)
+
+
+def coarse_sample(sample: Sample, factor: int = COARSE_FACTOR) -> Sample:
+    """``sample`` at 1/``factor`` of its resolution: image and mask averaged over factor x factor blocks
+    (a last row or column that fills no block dropped), the camera's focal lengths and principal point
+    divided by ``factor`` (pixel i's centre is at i + 1/2, so coarse pixel i covers fine pixels
+    factor i .. factor i + factor - 1 exactly), and the crop's box likewise."""
+    camera = sample.camera
+    height, width = camera.height // factor, camera.width // factor
+
+    def pooled(image: Tensor) -> Tensor:
+        return F.avg_pool2d(image[None, :, : height * factor, : width * factor], factor)[0]
+
+    coarse = Camera(
+        camera.fx / factor, camera.fy / factor, camera.cx / factor, camera.cy / factor, width, height, camera.world_to_camera
+    )
+    crop = sample.crop
+    if crop is not None:
+        frame = (crop.frame_width // factor, crop.frame_height // factor)
+        crop = Crop(crop.x0 // factor, crop.y0 // factor, width, height, *frame)
+    return replace(sample, image=pooled(sample.image), mask=pooled(sample.mask), camera=coarse, crop=crop)
+
+
+def _halves(samples: list[Sample]) -> bool:
+    """Whether the coarse steps of these images render at a lower resolution (:data:`COARSE_MIN_SIDE`)."""
+    camera = samples[0].camera if samples else None
+    return camera is not None and min(camera.width, camera.height) // COARSE_FACTOR >= COARSE_MIN_SIDE
 
 
 def refine_poses(
@@ -95,6 +143,8 @@ def refine_poses(
     desc: str = "refine poses",
     batch: int = IMAGES_PER_BATCH,
     hold_appearance: bool = False,
+    coarse_steps: int = 0,
+    dynamic_only: bool = False,
 ) -> PoseCorrections:
     """Pose corrections of the frames of ``data`` (one subject) fitted to their images for
     ``steps`` Adam steps (learning rate ``lr``, loss ``weights``), ``avatar`` frozen.
@@ -102,8 +152,10 @@ def refine_poses(
     ``corrections``: where to start (updated in place; None: zero corrections of every frame).
     ``images``: only these image indices of ``data`` (None: all of them). ``batch``: images
     refined together. ``hold_appearance``: the network's maps held at each batch's starting
-    poses (:class:`HeldAppearance`). Returns the corrections, indexed by
-    :attr:`Sample.frame_key`; the other frames' rows are unchanged.
+    poses (:class:`HeldAppearance`). ``coarse_steps``: the first steps of each batch coarse
+    (module doc). ``dynamic_only``: the loss of the dynamic render alone
+    (:class:`AvatarObjective`). Returns the corrections, indexed by :attr:`Sample.frame_key`;
+    the other frames' rows are unchanged.
     """
     body = load_body(avatar.body_name, body_model_path)
     geometry = avatar_geometry(avatar, body_model_path=body_model_path)
@@ -113,8 +165,9 @@ def refine_poses(
     frozen = [p for p in model.parameters() if p.requires_grad]
     for p in frozen:
         p.requires_grad_(False)
-    kind = HeldAppearance if hold_appearance else AvatarObjective
-    objective = kind(model, avatar.identity_map(), corrections, weights, lpips=None)
+    held = hold_appearance or coarse_steps > 0
+    kind = HeldAppearance if held else AvatarObjective
+    objective = kind(model, avatar.identity_map(), corrections, weights, lpips=None, dynamic_only=dynamic_only)
     optimizer = LazyAdam([{"params": list(corrections.parameters()), "lr": lr, "lazy": True}])
     images = [int(i) for i in (data.images[0] if images is None else images)]
     starts = range(0, len(images), batch)
@@ -123,19 +176,23 @@ def refine_poses(
         for position, start in enumerate(starts):
             with profile.part(profile.DATA):
                 samples = data.load_group(0, images[start : start + batch])
-            if hold_appearance:
+                coarse = [coarse_sample(sample) for sample in samples] if coarse_steps and _halves(samples) else samples
+            if held:
                 objective.release()
             if not samples:
                 bar.update(steps)
                 continue
-            height, width = samples[0].camera.height, samples[0].camera.width
             for step in range(steps):
+                if held:
+                    objective.holding = hold_appearance or step < coarse_steps
+                shown = coarse if step < coarse_steps else samples
+                height, width = shown[0].camera.height, shown[0].camera.width
                 optimizer.zero_grad(set_to_none=False)
                 with profile.part(profile.DATA):
                     backgrounds = draw_backgrounds(
                         TRAINING_BACKGROUND, len(samples), height, width, (seed, REFINE_SEED_SALT, step, position)
                     )
-                loss, _ = objective(samples, geometry, backgrounds)
+                loss, _ = objective(shown, geometry, backgrounds)
                 with profile.part(profile.LOSSES_BACKWARD):
                     loss.backward()
                 bar.update(1)
