@@ -335,6 +335,35 @@ def test_coarse_settling_steps_run_no_network_and_leave_the_avatar(tiny_dataset,
     assert all(torch.equal(a, b) for a, b in zip(before, avatar.model.parameters()))
 
 
+def test_settling_in_two_workers_is_settling_in_one(tiny_dataset, prior_file, tmp_path):
+    """Each frame's row depends on its own batch alone (lazy Adam rows, backgrounds drawn from the
+    batch's position): two workers, each on one thread, give the rows one gives, bit for bit."""
+    from pghm.train.fit import POSE_LR, FitConfig
+    from pghm.train.pose_refine import refine_poses
+
+    avatar = tiny_avatar(tiny_dataset / "subject_000", prior_file, tmp_path / "a.pt", 2, 2)
+    data = TrainingData(tiny_dataset / "subject_000")
+    frames = data.subjects[0].arrays.frame_index
+    images = [int(i) for i in data.images[0]]
+    one_view = [i for n, i in enumerate(images) if frames[i] not in frames[images[:n]]]  # a monocular video
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        rows = [
+            refine_poses(
+                avatar, data, 3, FitConfig().stage2.loss, POSE_LR, images=one_view, progress=False, batch=1,
+                coarse_steps=2, dynamic_only=True, workers=workers,
+            )
+            for workers in (1, 2)
+        ]
+    finally:
+        torch.set_num_threads(threads)
+    assert len(one_view) >= 2  # a batch for each worker
+    assert torch.count_nonzero(rows[0].rotations) > 0
+    assert torch.equal(rows[0].rotations, rows[1].rotations)
+    assert torch.equal(rows[0].translation, rows[1].translation)
+
+
 def test_learning_rate_ten_times_too_high_leaves_no_nan(tiny_dataset, tmp_path, caplog):
     config = prior_config(steps=8)
     config.network_lr = 10.0

@@ -375,6 +375,7 @@ def fit(
                     hold_appearance=config.hold_appearance,
                     coarse_steps=max(config.track_steps - config.track_fine_steps, 0),
                     dynamic_only=True,
+                    workers=torch.get_num_threads(),  # the thread policy's cores, one frame batch on each
                 )
             avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
         avatar.pose_track = move(learned_track(corrections, data), torch.device("cpu"))  # a record, as in the file

@@ -28,7 +28,9 @@ live pass aligns them (docs/training.md, "Speed").
 
 from __future__ import annotations
 
+import copy
 import logging
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import torch
@@ -129,6 +131,13 @@ def _halves(samples: list[Sample]) -> bool:
     return camera is not None and min(camera.width, camera.height) // COARSE_FACTOR >= COARSE_MIN_SIDE
 
 
+def _one_view_per_frame(data: TrainingData, images: list[int]) -> bool:
+    """Whether no two of ``images`` show one frame (a monocular video): then no two batches refine
+    one row, and batches can be refined in any order, side by side."""
+    frames = data.subjects[0].arrays.frame_index
+    return frames is None or len(set(frames[images].tolist())) == len(images)
+
+
 def refine_poses(
     avatar: Avatar,
     data: TrainingData,
@@ -145,6 +154,7 @@ def refine_poses(
     hold_appearance: bool = False,
     coarse_steps: int = 0,
     dynamic_only: bool = False,
+    workers: int = 1,
 ) -> PoseCorrections:
     """Pose corrections of the frames of ``data`` (one subject) fitted to their images for
     ``steps`` Adam steps (learning rate ``lr``, loss ``weights``), ``avatar`` frozen.
@@ -154,8 +164,10 @@ def refine_poses(
     refined together. ``hold_appearance``: the network's maps held at each batch's starting
     poses (:class:`HeldAppearance`). ``coarse_steps``: the first steps of each batch coarse
     (module doc). ``dynamic_only``: the loss of the dynamic render alone
-    (:class:`AvatarObjective`). Returns the corrections, indexed by :attr:`Sample.frame_key`;
-    the other frames' rows are unchanged.
+    (:class:`AvatarObjective`). ``workers``: threads that refine the batches side by side, each
+    on one core (torch's operators on one thread meanwhile), when no two images show one frame;
+    a batch's result is the same whichever refines it. Returns the corrections, indexed by :attr:`Sample.frame_key`; the other
+    frames' rows are unchanged.
     """
     body = load_body(avatar.body_name, body_model_path)
     geometry = avatar_geometry(avatar, body_model_path=body_model_path)
@@ -165,50 +177,116 @@ def refine_poses(
     frozen = [p for p in model.parameters() if p.requires_grad]
     for p in frozen:
         p.requires_grad_(False)
-    held = hold_appearance or coarse_steps > 0
-    kind = HeldAppearance if held else AvatarObjective
-    objective = kind(model, avatar.identity_map(), corrections, weights, lpips=None, dynamic_only=dynamic_only)
-    optimizer = LazyAdam([{"params": list(corrections.parameters()), "lr": lr, "lazy": True}])
     images = [int(i) for i in (data.images[0] if images is None else images)]
-    starts = range(0, len(images), batch)
-    bar = tqdm(total=len(starts) * steps, desc=desc, disable=not progress, dynamic_ncols=True)
+    batches = [images[start : start + batch] for start in range(0, len(images), batch)]
+    workers = max(1, min(workers, len(batches))) if _one_view_per_frame(data, images) else 1
+    # Each worker steps its own copy of the table; the rows of its frames are copied back at the end.
+    tables = [corrections, *(copy.deepcopy(corrections) for _ in range(workers - 1))]
+    settling = _Settling(
+        avatar, data, geometry, weights, lr, steps, seed, hold_appearance, coarse_steps, dynamic_only,
+        tqdm(total=len(batches) * steps, desc=desc, disable=not progress, dynamic_ncols=True),
+    )
+    threads = torch.get_num_threads()
     try:
-        for position, start in enumerate(starts):
-            with profile.part(profile.DATA):
-                samples = data.load_group(0, images[start : start + batch])
-                coarse = [coarse_sample(sample) for sample in samples] if coarse_steps and _halves(samples) else samples
-            if held:
-                objective.release()
-            if not samples:
-                bar.update(steps)
-                continue
-            for step in range(steps):
-                if held:
-                    objective.holding = hold_appearance or step < coarse_steps
-                shown = coarse if step < coarse_steps else samples
-                height, width = shown[0].camera.height, shown[0].camera.width
-                optimizer.zero_grad(set_to_none=False)
-                with profile.part(profile.DATA):
-                    backgrounds = draw_backgrounds(
-                        TRAINING_BACKGROUND, len(samples), height, width, (seed, REFINE_SEED_SALT, step, position)
-                    )
-                loss, _ = objective(shown, geometry, backgrounds)
-                with profile.part(profile.LOSSES_BACKWARD):
-                    loss.backward()
-                bar.update(1)
-                with profile.part(profile.GUARD):
-                    finite = all(bool(torch.isfinite(p.grad).all()) for p in corrections.parameters())
-                if not finite:
-                    log.warning(
-                        "pose refinement, images %s, step %d: non-finite gradient; step skipped",
-                        [s.image_index for s in samples],
-                        step,
-                    )
-                    continue
-                with profile.part(profile.OPTIMISER):
-                    optimizer.step()
+        if workers == 1:
+            settling.run(corrections, batches, range(len(batches)))
+        else:
+            torch.set_num_threads(1)
+            with ThreadPoolExecutor(workers - 1) as pool:
+                shares = [range(worker, len(batches), workers) for worker in range(workers)]
+                others = [pool.submit(settling.run, tables[w], batches, shares[w]) for w in range(1, workers)]
+                try:
+                    settling.run(corrections, batches, shares[0])
+                finally:
+                    settling.stop = True  # the others end at their next batch if this one failed
+                    frames = [other.result() for other in others]
+            with torch.no_grad():
+                for table, keys in zip(tables[1:], frames):
+                    rows = torch.tensor(keys, dtype=torch.long, device=corrections.rotations.device)
+                    corrections.rotations[rows] = table.rotations[rows]
+                    corrections.translation[rows] = table.translation[rows]
     finally:
-        bar.close()
+        torch.set_num_threads(threads)
+        settling.bar.close()
         for p in frozen:
             p.requires_grad_(True)
     return corrections.requires_grad_(False)
+
+
+class _Settling:
+    """One refinement's settings, and :meth:`run`, which refines a share of its batches."""
+
+    def __init__(
+        self,
+        avatar: Avatar,
+        data: TrainingData,
+        geometry: SubjectGeometry,
+        weights: LossWeights,
+        lr: float,
+        steps: int,
+        seed: int,
+        hold_appearance: bool,
+        coarse_steps: int,
+        dynamic_only: bool,
+        bar: tqdm,
+    ) -> None:
+        self.avatar, self.data, self.geometry, self.weights, self.lr = avatar, data, geometry, weights, lr
+        self.steps, self.seed, self.hold_appearance, self.coarse_steps = steps, seed, hold_appearance, coarse_steps
+        self.dynamic_only, self.bar = dynamic_only, bar
+        self.held = hold_appearance or coarse_steps > 0
+        self.stop = False
+
+    def run(self, corrections: PoseCorrections, batches: list[list[int]], share: range) -> list[int]:
+        """Refine ``corrections``' rows of the batches ``share`` (positions in ``batches``, lists of
+        image indices), each batch for all its steps; returns the frame keys refined."""
+        kind = HeldAppearance if self.held else AvatarObjective
+        objective = kind(
+            self.avatar.model, self.avatar.identity_map(), corrections, self.weights, None, self.dynamic_only
+        )
+        optimizer = LazyAdam([{"params": list(corrections.parameters()), "lr": self.lr, "lazy": True}])
+        frames = []
+        for position in share:
+            if self.stop:
+                break
+            with profile.part(profile.DATA):
+                samples = self.data.load_group(0, batches[position])
+            frames += [sample.frame_key for sample in samples]
+            self._batch(objective, optimizer, samples, position)
+        return frames
+
+    def _batch(self, objective: AvatarObjective, optimizer: LazyAdam, samples: list[Sample], position: int) -> None:
+        """All the steps of one batch of ``samples``, the ``position``-th batch of the refinement."""
+        steps, coarse_steps = self.steps, self.coarse_steps
+        with profile.part(profile.DATA):
+            coarse = [coarse_sample(sample) for sample in samples] if coarse_steps and _halves(samples) else samples
+        if self.held:
+            objective.release()
+        if not samples:
+            self.bar.update(steps)
+            return
+        parameters = list(objective.corrections.parameters())
+        for step in range(steps):
+            if self.held:
+                objective.holding = self.hold_appearance or step < coarse_steps
+            shown = coarse if step < coarse_steps else samples
+            height, width = shown[0].camera.height, shown[0].camera.width
+            optimizer.zero_grad(set_to_none=False)
+            with profile.part(profile.DATA):
+                backgrounds = draw_backgrounds(
+                    TRAINING_BACKGROUND, len(samples), height, width, (self.seed, REFINE_SEED_SALT, step, position)
+                )
+            loss, _ = objective(shown, self.geometry, backgrounds)
+            with profile.part(profile.LOSSES_BACKWARD):
+                loss.backward()
+            self.bar.update(1)
+            with profile.part(profile.GUARD):
+                finite = all(bool(torch.isfinite(p.grad).all()) for p in parameters)
+            if not finite:
+                log.warning(
+                    "pose refinement, images %s, step %d: non-finite gradient; step skipped",
+                    [s.image_index for s in samples],
+                    step,
+                )
+                continue
+            with profile.part(profile.OPTIMISER):
+                optimizer.step()

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import threading
 import time
 from collections import defaultdict
 from collections.abc import Iterator
@@ -71,6 +72,9 @@ class Profile:
         self.threads = torch.get_num_threads()
         self._wall_mark, self._cpu_mark = time.perf_counter(), time.process_time()
         self.started_wall, self.started_cpu = self._wall_mark, self._cpu_mark
+        self.thread = threading.get_ident()
+        """The thread whose parts are charged; other threads' work (a settling's second worker) falls
+        in the part this one is in, as the CPU clock is the whole process's."""
 
     def charge(self) -> None:
         """Charge the time since the last mark to the open (phase, part)."""
@@ -174,22 +178,30 @@ def profiled() -> Iterator[Profile]:
         _ACTIVE = None
 
 
+def _active() -> Profile | None:
+    """The active profile when this thread is the one it charges, else None."""
+    active = _ACTIVE
+    return active if active is not None and active.thread == threading.get_ident() else None
+
+
 def part(name: str) -> contextlib.AbstractContextManager:
     """Charge the time inside to ``name`` of the active profile (nothing when none is)."""
-    return _ACTIVE.part(name) if _ACTIVE is not None else _NOTHING
+    active = _active()
+    return active.part(name) if active is not None else _NOTHING
 
 
 def phase(name: str) -> contextlib.AbstractContextManager:
     """Charge the time inside to phase ``name`` of the active profile (nothing when none is)."""
-    return _ACTIVE.phase(name) if _ACTIVE is not None else _NOTHING
+    active = _active()
+    return active.phase(name) if active is not None else _NOTHING
 
 
 def mark_backward(renders: list[Tensor], gaussians: list[Tensor]) -> None:
     """Split the backward pass at the renders and at the Gaussians splatted into them: gradients
     reaching ``renders`` start the splatter's backward, gradients reaching ``gaussians`` the network's."""
-    if _ACTIVE is None or not torch.is_grad_enabled():
+    profile = _active()
+    if profile is None or not torch.is_grad_enabled():
         return
-    profile = _ACTIVE
     for tensors, name in ((renders, SPLAT_BACKWARD), (gaussians, NETWORK_BACKWARD)):
         for tensor in tensors:
             if tensor.requires_grad:
