@@ -12,11 +12,15 @@ starts as a user's would (thread policy included) and its table is the fit's own
 - ``--policies``: beside a busy loop, short fits under each thread setting of :data:`POLICIES`,
   interleaved ``--repeats`` times: median stage-2 seconds per step and its ratio to the first;
 - ``--held-check AVATAR``: the subject's held-out frames after :data:`TRACK_STEPS` steps of pose
-  refinement with the network run at every step and with its maps held (the settling's way).
+  refinement with the network run at every step and with its maps held;
+- ``--settle-check AVATAR``: AVATAR fitted with ``--track-steps 0``; the training frames on either
+  side of each held-out frame settled by each way of :data:`SETTLINGS` (one thread, seeds 0 and
+  1), their CPU seconds per image and step, and the held-out frames' PSNR / SSIM with the track
+  (``pghm eval --fit-poses``).
 
     python benchmarks/bench_fit_speed.py SUBJECT [SUBJECT ...] [--steps 5 10 2] [--repeats 3]
                                          [--threads 1] [--full] [--busy] [--policies] [--label NAME]
-                                         [--held-check AVATAR]
+                                         [--held-check AVATAR] [--settle-check AVATAR]
 
 Prints the tables and writes benchmarks/results/bench_fit_speed[_NAME].json. Every row records
 the load averages it ran under: on a shared machine the wall times are what others left, the
@@ -34,6 +38,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from common import ROOT, load_average, print_table, write_json
@@ -55,6 +60,19 @@ POLICIES = {
 }
 """Thread settings compared beside a busy core. An empty OMP_WAIT_POLICY is libgomp's own
 default (spin a while, then sleep), which pghm replaces only when the variable is absent."""
+SETTLINGS = {
+    "none": {"steps": 0},
+    "all live, both renders": {"steps": TRACK_STEPS},
+    "default: coarse, then 6 live, dynamic": {
+        "steps": TRACK_STEPS, "coarse_steps": TRACK_STEPS - 6, "dynamic_only": True
+    },
+    "coarse, then 6 live, both renders": {"steps": TRACK_STEPS, "coarse_steps": TRACK_STEPS - 6},
+    "coarse, then 3 live, dynamic": {"steps": TRACK_STEPS, "coarse_steps": TRACK_STEPS - 3, "dynamic_only": True},
+    "10 live steps": {"steps": 10},
+}
+"""Ways of settling a pose track that ``--settle-check`` compares (:func:`pghm.train.pose_refine.refine_poses`'s
+arguments; the learning rate is the fit's, :data:`pghm.train.fit.POSE_LR`)."""
+SETTLE_SEEDS = (0, 1)
 STAGES = ("stage 1", "stage 2", "pose settling")
 DEFAULT_STEPS = {"stage 1": 50, "stage 2": 450}
 
@@ -212,6 +230,51 @@ def held_check(avatar: Path, subject: Path, steps: int) -> dict:
     return {"subject": subject.name, "avatar": avatar.name, "steps": steps, "rows": rows}
 
 
+def settle_check(avatar_path: Path, subject: Path) -> dict:
+    """Per way of :data:`SETTLINGS` and seed, the CPU of settling the training frames next to the
+    held-out ones (the frames ``--fit-poses`` reads) and the held-out PSNR / SSIM with the track."""
+    import torch
+
+    from pghm.body import load_body
+    from pghm.io.avatar import load_avatar
+    from pghm.train.data import TrainingData
+    from pghm.train.evaluate import evaluate
+    from pghm.train.fit import POSE_LR, FitConfig
+    from pghm.train.person_crop import CROP_MARGIN
+    from pghm.train.pose_refine import refine_poses
+    from pghm.train.pose_track import learned_track, track_corrections
+
+    torch.set_num_threads(1)
+    avatar = load_avatar(avatar_path)
+    data = TrainingData(subject, crop_margin=CROP_MARGIN)  # as the fit settles
+    test = json.loads((subject / "splits.json").read_text())["test"]
+    images = [int(i) for i in data.images[0] if any(abs(int(i) - t) == 1 for t in test)]
+    body = load_body(data.body_name)
+    rows = []
+    for name, options in SETTLINGS.items():
+        for seed in SETTLE_SEEDS if options["steps"] else (0,):
+            corrections, _ = track_corrections(avatar.pose_track, data, body)
+            started = time.process_time()
+            refine_poses(
+                avatar, data, weights=FitConfig().stage2.loss, lr=POSE_LR, corrections=corrections, images=images,
+                seed=seed, progress=False, **options,
+            )
+            seconds = time.process_time() - started
+            settled = replace(avatar, pose_track=learned_track(corrections, data))
+            summary = evaluate(settled, subject, fit_poses=True).summary()
+            rows.append(
+                {
+                    "settling": name,
+                    "seed": seed,
+                    "psnr": round(summary["psnr"], 3),
+                    "ssim": round(summary["ssim"], 4),
+                    "cpu_s": round(seconds, 1),
+                    "cpu_ms_per_image_step": round(1000 * seconds / (len(images) * max(options["steps"], 1)), 1),
+                }
+            )
+    return {"subject": subject.name, "avatar": avatar_path.name, "frames": len(images), "rows": rows}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("subjects", nargs="+", type=Path)
@@ -228,12 +291,21 @@ def main() -> None:
         "--held-check", type=Path, default=None, metavar="AVATAR",
         help="refine the held-out poses of the (one) subject against AVATAR with the network run and held",
     )
+    parser.add_argument(
+        "--settle-check", type=Path, default=None, metavar="AVATAR",
+        help="settle the track of AVATAR (fitted with --track-steps 0) in each way of SETTLINGS; score held-out frames",
+    )
     args = parser.parse_args()
-    payload: dict = {"breakdown": [], "full": [], "policies": [], "held_check": []}
+    payload: dict = {"breakdown": [], "full": [], "policies": [], "held_check": [], "settle_check": []}
     with tempfile.TemporaryDirectory() as temporary:
         work = Path(temporary)
         for subject in args.subjects:
-            if args.held_check:
+            if args.settle_check:
+                result = settle_check(args.settle_check, subject)
+                print(f"\n{subject.name}: held-out frames with the track settled ({result['frames']} frames)")
+                print_table(result["rows"])
+                payload["settle_check"].append(result)
+            elif args.held_check:
                 result = held_check(args.held_check, subject, TRACK_STEPS)
                 print(f"\n{subject.name}: held-out frames after {TRACK_STEPS} refinement steps")
                 print_table(result["rows"])

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -289,9 +290,8 @@ def test_a_coarse_sample_averages_its_pixels_and_scales_its_camera(tiny_dataset)
             torch.testing.assert_close(small[:, y, x], block.mean((1, 2)), rtol=0, atol=1e-6)
 
     camera = Camera(fx=70.0, fy=72.0, cx=33.5, cy=22.25, width=64, height=48, world_to_camera=torch.eye(4))
-    small = coarse_sample(
-        type(sample)(0, 0, 0, torch.zeros(3, 48, 64), torch.zeros(1, 48, 64), camera, sample.rotations, sample.translation)
-    ).camera
+    blank = replace(sample, image=torch.zeros(3, 48, 64), mask=torch.zeros(1, 48, 64), camera=camera, crop=None)
+    small = coarse_sample(blank).camera
     gaussian = (
         torch.tensor([[0.05, -0.03, 2.0]], dtype=torch.float64),
         torch.tensor([0.06], dtype=torch.float64),

@@ -20,8 +20,8 @@ of images is in memory. Appearance is untouched: the latent and every network we
 fitted.
 
 Coarse to fine (``coarse_steps``, the fit's settling): a frame's first steps render at half the
-image's resolution (:func:`coarse_sample`; a small image keeps its own) with the network's maps held at the batch's starting
-poses (:class:`HeldAppearance`), which costs the skinning, the splatter and the loss and no
+image's resolution (:func:`coarse_sample`; a small image keeps its own) with the network's maps
+held at the batch's starting poses (:class:`HeldAppearance`), which costs the skinning, the splatter and the loss and no
 U-Net; its last steps run the network at full resolution, so the poses end aligned as a fully
 live pass aligns them (docs/training.md, "Speed").
 """
@@ -115,9 +115,8 @@ def coarse_sample(sample: Sample, factor: int = COARSE_FACTOR) -> Sample:
     def pooled(image: Tensor) -> Tensor:
         return F.avg_pool2d(image[None, :, : height * factor, : width * factor], factor)[0]
 
-    coarse = Camera(
-        camera.fx / factor, camera.fy / factor, camera.cx / factor, camera.cy / factor, width, height, camera.world_to_camera
-    )
+    fx, fy, cx, cy = (value / factor for value in (camera.fx, camera.fy, camera.cx, camera.cy))
+    coarse = Camera(fx, fy, cx, cy, width, height, camera.world_to_camera)
     crop = sample.crop
     if crop is not None:
         frame = (crop.frame_width // factor, crop.frame_height // factor)
@@ -166,8 +165,8 @@ def refine_poses(
     (module doc). ``dynamic_only``: the loss of the dynamic render alone
     (:class:`AvatarObjective`). ``workers``: threads that refine the batches side by side, each
     on one core (torch's operators on one thread meanwhile), when no two images show one frame;
-    a batch's result is the same whichever refines it. Returns the corrections, indexed by :attr:`Sample.frame_key`; the other
-    frames' rows are unchanged.
+    a batch's result is the same whichever refines it. Returns the corrections, indexed by
+    :attr:`Sample.frame_key`; the other frames' rows are unchanged.
     """
     body = load_body(avatar.body_name, body_model_path)
     geometry = avatar_geometry(avatar, body_model_path=body_model_path)
