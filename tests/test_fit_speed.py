@@ -244,29 +244,6 @@ def test_a_users_thread_count_wins(monkeypatch):
     assert set_threads() == before == torch.get_num_threads()
 
 
-def test_blended_skinning_is_the_per_bone_sum():
-    """One (N, J) x (J, 12 B) product equals the definition M[b, n] = sum_j W[n, j] (A[b, j] - I)[:3]
-    summed bone by bone in float64 (rounding only: 1e-12 on entries of order one)."""
-    from pghm.body.skinning import blend_transform_deltas, rotate_directions, skin_directions
-
-    generator = torch.Generator().manual_seed(3)
-    weights = torch.rand(7, 5, generator=generator, dtype=torch.float64)
-    weights = weights / weights.sum(1, keepdim=True)
-    transforms = torch.eye(4, dtype=torch.float64).repeat(3, 5, 1, 1)
-    transforms[..., :3, :] += 0.3 * torch.randn(3, 5, 3, 4, generator=generator, dtype=torch.float64)
-    reference = torch.zeros(3, 7, 3, 4, dtype=torch.float64)
-    for b in range(3):
-        for n in range(7):
-            for j in range(5):
-                reference[b, n] += weights[n, j] * (transforms[b, j, :3] - torch.eye(3, 4, dtype=torch.float64))
-    deltas = blend_transform_deltas(weights, transforms)
-    torch.testing.assert_close(deltas, reference, rtol=0, atol=1e-12)
-    directions = torch.randn(7, 3, generator=generator, dtype=torch.float64)
-    torch.testing.assert_close(
-        rotate_directions(directions, deltas[..., :3]), skin_directions(directions, weights, transforms), rtol=0, atol=0
-    )
-
-
 def test_a_coarse_sample_averages_its_pixels_and_scales_its_camera(tiny_dataset):
     """The coarse image and mask are the means of 2 x 2 blocks (brute force), and the coarse camera
     draws a Gaussian where the full one does, halved: the alpha-weighted centroids of one Gaussian's

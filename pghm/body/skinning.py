@@ -107,12 +107,9 @@ def blend_transform_deltas(weights: Tensor, transforms: Tensor) -> Tensor:
         deltas: (B, N, 3, 4) with deltas[b, n] = sum_j weights[n, j] (A[b, j] - I)[:3].
     """
     identity = torch.eye(3, 4, dtype=transforms.dtype, device=transforms.device)
-    batch, bones = transforms.shape[:2]
-    flat = (transforms[..., :3, :] - identity).reshape(batch, bones, 12)
-    # M[b, n, k] = sum_j W[n, j] (A - I)[b, j, k] over the 12 entries k of the top 3x4 block, as one
-    # (N, J) x (J, 12 B) product: broadcasting the weights over the batch runs B slower ones.
-    blended = weights.to(flat.dtype) @ flat.transpose(0, 1).reshape(bones, batch * 12)
-    return blended.view(-1, batch, 3, 4).transpose(0, 1)
+    flat = (transforms[..., :3, :] - identity).reshape(transforms.shape[0], transforms.shape[1], 12)
+    # M[b, n, k] = sum_j W[n, j] (A - I)[b, j, k] over the 12 entries k of the top 3x4 block.
+    return torch.matmul(weights.to(flat.dtype), flat).reshape(transforms.shape[0], -1, 3, 4)
 
 
 def lbs(points_canonical: Tensor, weights: Tensor, transforms: Tensor) -> Tensor:
@@ -144,14 +141,9 @@ def skin_directions(directions: Tensor, weights: Tensor, transforms: Tensor) -> 
         directions: (B, N, 3) unit vectors; a direction blended to zero length stays zero
         instead of becoming NaN.
     """
-    return rotate_directions(directions, blend_transform_deltas(weights, transforms)[..., :3])
-
-
-def rotate_directions(directions: Tensor, rotation_delta: Tensor) -> Tensor:
-    """:func:`skin_directions` with the blended linear parts minus identity (B, N, 3, 3) given
-    (:func:`blend_transform_deltas`), for a caller that needs them too."""
-    vectors = directions.to(rotation_delta.dtype)
-    return safe_normalize(vectors + (rotation_delta @ vectors[..., None])[..., 0])
+    deltas = blend_transform_deltas(weights, transforms)
+    vectors = directions.to(deltas.dtype)
+    return safe_normalize(vectors + (deltas[..., :3] @ vectors[..., None])[..., 0])
 
 
 NORMALIZE_EPS = 1e-12
