@@ -43,7 +43,7 @@ from pathlib import Path
 
 from common import ROOT, load_average, print_table, write_json
 
-from pghm.train.fit import TRACK_STEPS
+from pghm.train.fit import TRACK_FINE_STEPS, TRACK_STEPS
 
 PGHM = [sys.executable, "-m", "pghm.cli.main"]
 PRIOR = ROOT / "assets" / "prior.pt"
@@ -63,10 +63,11 @@ default (spin a while, then sleep), which pghm replaces only when the variable i
 SETTLINGS = {
     "none": {"steps": 0},
     "all live, both renders": {"steps": TRACK_STEPS},
-    "default: coarse, then 6 live, dynamic": {
-        "steps": TRACK_STEPS, "coarse_steps": TRACK_STEPS - 6, "dynamic_only": True
+    "default: coarse, then 10 live, dynamic": {
+        "steps": TRACK_STEPS, "coarse_steps": TRACK_STEPS - TRACK_FINE_STEPS, "dynamic_only": True
     },
-    "coarse, then 6 live, both renders": {"steps": TRACK_STEPS, "coarse_steps": TRACK_STEPS - 6},
+    "coarse, then 6 live, dynamic": {"steps": TRACK_STEPS, "coarse_steps": TRACK_STEPS - 6, "dynamic_only": True},
+    "coarse, then 10 live, both renders": {"steps": TRACK_STEPS, "coarse_steps": TRACK_STEPS - TRACK_FINE_STEPS},
     "coarse, then 3 live, dynamic": {"steps": TRACK_STEPS, "coarse_steps": TRACK_STEPS - 3, "dynamic_only": True},
     "10 live steps": {"steps": 10},
 }

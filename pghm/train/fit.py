@@ -70,10 +70,11 @@ TRACK_STEPS = 30
 Adam's first steps move every coordinate by about the learning rate, whatever its gradient, so
 the poses settle only after a few tens (docs/lab/defaults.md, "Fit: settling the pose track")."""
 
-TRACK_FINE_STEPS = 6
+TRACK_FINE_STEPS = 10
 """The last of a frame's settling steps, which run the network at full resolution; the others are
 coarse (:mod:`pghm.train.pose_refine`): half the resolution, the network's maps held, a third of the
-time (docs/training.md, "Speed")."""
+time. Six leave the held-out frames a little worse aligned than a fully live settling, ten a little
+better (docs/lab/fit-speed.md)."""
 
 TRACK_MIN_VISITS = 20
 """Stage 2 visits per training frame (its steps x images per step / training images) from which its
