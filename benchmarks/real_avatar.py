@@ -242,8 +242,9 @@ def make(args: argparse.Namespace) -> int:
         shutil.copyfile(fitted, ROOT / SHIPPED)
         record["avatar_mb"] = round((ROOT / SHIPPED).stat().st_size / 1e6, 1)
         print(f"wrote {SHIPPED} ({record['avatar_mb']} MB)")
-        report = work / "eval.json"
+        report, held_out = work / "eval.json", work / "eval.png"
         evaluation = [*PGHM, "eval", str(SHIPPED), str(subject), "--fit-poses", "--report", str(report)]
+        evaluation += ["--strip", str(held_out)]  # beside the subject, not the shipped avatar
         record["eval"] = stage(evaluation, work / "eval.log")
         mean = json.loads(report.read_text())["mean"]
         record["eval"].update({key: round(float(mean[key]), 4) for key in ("psnr", "ssim", "iou")})
