@@ -176,7 +176,7 @@ def check_training_image(subject_dir: Path, index: int) -> None:
 
     train = Subject.open(subject_dir).split("train").indices
     if index not in train:
-        raise SystemExit(f"--frame {index}: not a training image of {subject_dir} ({len(train)} of them, e.g. {train[:3]})")
+        raise SystemExit(f"--frame {index}: not a training image of {subject_dir} (those are {train[:3]} ...)")
 
 
 def subject_image(subject_dir: Path, index: int) -> np.ndarray:
@@ -216,10 +216,9 @@ def labelled_rows(rows: list[Image.Image], labels: list[str]) -> Image.Image:
 def viewer_screenshot(avatar: Path, path: Path) -> None:
     """``pghm-view``'s default window on ``avatar`` at frame :data:`SCREENSHOT_FRAME` of the walk."""
     sys.path.insert(0, str(ROOT / "scripts"))
-    from viewer_shots import settled_screenshot
-
     from viewer.settings import WINDOW_SIZE
     from viewer.viewer import Viewer
+    from viewer_shots import settled_screenshot
 
     viewer = Viewer(avatar, window_size=WINDOW_SIZE)
     viewer.setup()
@@ -238,7 +237,8 @@ def make(args: argparse.Namespace) -> int:
         if not subject.is_dir():
             record["capture"] = stage([*PGHM, "capture", str(args.video), "--out", str(subject)], work / "capture.log")
         check_training_image(subject, args.frame)
-        record["fit"] = stage([*PGHM, "fit", str(subject), "--prior", str(PRIOR), "--out", str(fitted)], work / "fit.log")
+        fit = [*PGHM, "fit", str(subject), "--prior", str(PRIOR), "--out", str(fitted)]
+        record["fit"] = stage(fit, work / "fit.log")
         shutil.copyfile(fitted, ROOT / SHIPPED)
         record["avatar_mb"] = round((ROOT / SHIPPED).stat().st_size / 1e6, 1)
         print(f"wrote {SHIPPED} ({record['avatar_mb']} MB)")
