@@ -21,9 +21,9 @@ fitted.
 
 Coarse to fine (``coarse_steps``, the fit's settling): a frame's first steps render at half the
 image's resolution (:func:`coarse_sample`; a small image keeps its own) with the network's maps
-held at the batch's starting poses (:class:`HeldAppearance`), which costs the skinning, the splatter and the loss and no
-U-Net; its last steps run the network at full resolution, so the poses end aligned as a fully
-live pass aligns them (docs/training.md, "Speed").
+held at the batch's starting poses (:class:`HeldAppearance`), which costs the skinning, the
+splatter and the loss and no U-Net; its last steps run the network at full resolution, so the
+poses end aligned as a fully live pass aligns them (docs/training.md, "Speed").
 """
 
 from __future__ import annotations
@@ -105,10 +105,10 @@ class HeldAppearance(AvatarObjective):
 
 
 def coarse_sample(sample: Sample, factor: int = COARSE_FACTOR) -> Sample:
-    """``sample`` at 1/``factor`` of its resolution: image and mask averaged over factor x factor blocks
-    (a last row or column that fills no block dropped), the camera's focal lengths and principal point
-    divided by ``factor`` (pixel i's centre is at i + 1/2, so coarse pixel i covers fine pixels
-    factor i .. factor i + factor - 1 exactly), and the crop's box likewise."""
+    """``sample`` at 1/``factor`` of its resolution: image and mask averaged over factor x factor
+    blocks (a last row or column that fills no block dropped), the camera's focal lengths and
+    principal point divided by ``factor`` (pixel i's centre is at i + 1/2, so coarse pixel i covers
+    fine pixels factor i .. factor i + factor - 1 exactly), and the crop's box likewise."""
     camera = sample.camera
     height, width = camera.height // factor, camera.width // factor
 
