@@ -51,12 +51,14 @@ def _is_standin(device) -> bool:
 def _allowed_cpu_tensor(func, position: str, value: torch.Tensor) -> bool:
     """Whether CUDA's kernel of ``func`` accepts the CPU tensor ``value`` (argument ``position``)."""
     name = func.overloadpacket.__name__
+    if name in ("copy_", "_to_copy", "_copy_from", "_local_scalar_dense"):
+        return True  # copies cross devices by design
+    if position == "self" and name.endswith("_"):
+        return False  # an in-place op writes where its self is
     if value.dim() == 0 and (torch.Tag.pointwise in func.tags or name in _SCALAR_VALUE_OPS):
         return True  # TensorIterator, fill and masked_fill take a CPU scalar tensor as a number
     if name in ("index", "index_put", "index_put_", "_index_put_impl_") and position == "indices":
         return True  # indexing moves CPU indices to the device
-    if name in ("copy_", "_to_copy", "_copy_from", "_local_scalar_dense"):
-        return True  # copies cross devices by design
     return False
 
 

@@ -94,6 +94,7 @@ def test_the_standin_refuses_what_cuda_refuses_and_takes_what_it_takes():
             lambda: torch.stack([x, torch.ones(2, 3)]),
             lambda: F.conv2d(x[None, None], torch.ones(1, 1, 1, 1)),
             lambda: x.index_select(1, torch.tensor([0])),
+            lambda: torch.tensor(1.0).add_(x[0, 0]),
         ):
             with pytest.raises(MixedDevices):
                 mixed()
