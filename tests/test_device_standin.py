@@ -118,7 +118,7 @@ def test_losses_on_the_device_are_the_cpus():
     crops = [Crop(2, 3, 20, 24, 40, 30), None]
 
     def losses(device):
-        area = area_tensor(crops, device)
+        area = area_tensor(crops).to(device)  # as the loop moves it
         moved = [t.to(device) for t in (render, target, alpha, mask)]
         terms = image_losses(moved[0], moved[1], area=area, target_ssim=TargetSsim(moved[1]))
         terms["sil"] = silhouette(moved[2], moved[3], area[:, 0])

@@ -217,7 +217,7 @@ class AvatarObjective(nn.Module):
     ) -> tuple[Tensor, dict[str, float]]:
         """The loss of renders (B, 3, H, W) and alphas (B, 1, H, W) against targets and masks, and its
         terms; those of the full frames when the samples are crops."""
-        area = area_tensor([s.crop for s in samples], static.device) if any(s.crop for s in samples) else None
+        area = area_tensor([s.crop for s in samples]).to(static.device) if any(s.crop for s in samples) else None
         share = area[:, 0] if area is not None else None
         loss, terms = objective(static, dynamic, target, regularizer, self.weights, self.lpips, area)
         if self.weights.silhouette > 0:

@@ -100,7 +100,6 @@ def place(box: tuple[int, int, int, int] | None, size: tuple[int, int], width: i
     return Crop(left, top, w, h, width, height)
 
 
-def area_tensor(crops: list[Crop | None], device: torch.device | str = "cpu") -> torch.Tensor:
-    """(B, 2) float32 (s_pixels, s_windows) of each image, on ``device`` (the losses'); (1, 1) for an uncropped one."""
-    shares = [crop.area_shares() if crop else (1.0, 1.0) for crop in crops]
-    return torch.tensor(shares, dtype=torch.float32, device=device)
+def area_tensor(crops: list[Crop | None]) -> torch.Tensor:
+    """(B, 2) float32 (s_pixels, s_windows) of each image; (1, 1) for an uncropped one."""
+    return torch.tensor([crop.area_shares() if crop else (1.0, 1.0) for crop in crops], dtype=torch.float32)
