@@ -9,7 +9,8 @@ C++ core (which has a device guard for meta, none for CUDA on a CPU-only build).
 that reaches a wrapper checks its tensor arguments as CUDA's kernels would: a CPU tensor beside
 device tensors raises :class:`MixedDevices`, except where CUDA accepts one (a 0-dim CPU tensor in
 a pointwise op, CPU indices in indexing, the source of a copy). ``.cpu()`` returns a plain tensor.
-Gradients cross both ways.
+Gradients cross both ways, ``p.data = x`` swaps the values too, and ``torch.save`` writes the
+values (as a CUDA tensor read back with ``map_location="cpu"`` gives them).
 
 gsplat's CUDA kernels are stood in for by :func:`fake_gsplat_rasterization`, which demands every
 tensor argument on the device, renders with pghm's CPU splatter and returns device tensors.
@@ -120,6 +121,8 @@ class OnDevice(torch.Tensor):
             raise TypeError("can't convert cuda:0 device type tensor to numpy. Use Tensor.cpu() first.")
         if func is torch.Tensor.tolist:
             return args[0].elem.tolist()
+        if func == torch.Tensor.data.__set__ and isinstance(args[1], OnDevice):
+            args[0].elem = args[1].elem  # ``p.data = x`` swaps the wrapper's metadata, not its values
         with torch._C.DisableTorchFunctionSubclass():
             return func(*args, **(kwargs or {}))
 

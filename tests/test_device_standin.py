@@ -3,14 +3,16 @@ tensor where CUDA's kernels would: train-prior, fit (both stages with pose corre
 settling, the detail stage, a checkpoint and its resumption), eval (with the fit's pose track and
 with test-time pose refinement), render and export.
 
-The stand-in keeps its values on the CPU and renders through the CPU splatter, so eval, render and
-export must give the CPU's numbers and bytes exactly. A fit's parameters agree with the CPU's only
-to float32 rounding (torch's own optimiser, gradient clipping and autograd engine take other paths
-for tensors on another device), so the fits are checked for running and writing CPU files."""
+The stand-in keeps its values on the CPU, computes with the CPU's kernels and renders through the
+CPU splatter, so each command on it must give exactly what it gives on the CPU: the same priors
+and avatars bit for bit, the same metrics, images and .ply bytes. A device path that computed
+something else (a value lost or changed on its way to the device) would show there too."""
 
 from __future__ import annotations
 
 import json
+from dataclasses import fields
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -62,27 +64,47 @@ def steps(count: int, **options) -> LoopConfig:
     return LoopConfig(steps=count, images_per_shard=2, checkpoint_every=0, progress=False, **options)
 
 
+def same_tensors(path_a: Path, path_b: Path) -> bool:
+    """Whether two avatar or prior files hold the same tensors, bit for bit (weights, latent,
+    shapes, pose track)."""
+
+    def tensors(avatar) -> dict[str, torch.Tensor]:
+        found = {f"model.{name}": value for name, value in avatar.model.state_dict().items()}
+        found.update({name: getattr(avatar, name) for name in ("shape", "shapes", "latent")})
+        if avatar.pose_track is not None:
+            found.update({f"track.{f.name}": getattr(avatar.pose_track, f.name) for f in fields(avatar.pose_track)})
+        return {name: value for name, value in found.items() if isinstance(value, torch.Tensor)}
+
+    a, b = tensors(load_avatar(path_a)), tensors(load_avatar(path_b))
+    return a.keys() == b.keys() and all(torch.equal(a[name], b[name]) for name in a)
+
+
 @pytest.fixture(scope="module")
-def prior_file(tiny_dataset, tmp_path_factory, patches):
-    """A prior trained on the stand-in: bank, network and pose corrections, gradient backgrounds."""
-    path = tmp_path_factory.mktemp("standin") / "prior.pt"
+def prior_files(tiny_dataset, tmp_path_factory, patches) -> dict[str, Path]:
+    """A prior trained on the CPU and on the stand-in: bank, network and pose corrections,
+    gradient backgrounds, LPIPS."""
+    folder = tmp_path_factory.mktemp("priors")
     config = PriorConfig(model=ModelConfig(**TINY_MODEL), loop=steps(2, background="gradient"))
+    train_prior(tiny_dataset, folder / "cpu.pt", config, device="cpu")
     with standin_cuda():
-        train_prior(tiny_dataset, path, config, device="cuda")
-    return path
+        train_prior(tiny_dataset, folder / "cuda.pt", config, device="cuda")
+    return {device: folder / f"{device}.pt" for device in ("cpu", "cuda")}
 
 
 @pytest.fixture(scope="module")
-def avatar_file(tiny_dataset, prior_file, tmp_path_factory, patches):
-    """``pghm fit --device cuda`` with every stage: 1 step each of stage 1, stage 2 (pose
-    corrections), the pose settling and the detail stage, a checkpoint after every step, profiled."""
-    out = tmp_path_factory.mktemp("standin") / "avatar.pt"
+def avatar_files(tiny_dataset, prior_files, tmp_path_factory, patches) -> dict[str, Path]:
+    """``pghm fit --device cpu`` and ``--device cuda`` with every stage: 1 step each of stage 1,
+    stage 2 (pose corrections), the pose settling and the detail stage, a checkpoint after every
+    step, profiled."""
+    folder = tmp_path_factory.mktemp("avatars")
     stages = ["--stage1-steps", "1", "--stage2-steps", "1", "--track-steps", "1", "--detail-steps", "1"]
-    args = ["fit", str(tiny_dataset / SUBJECT), "--prior", str(prior_file), "--out", str(out), *stages]
-    with standin_cuda():
-        code = main([*args, "--checkpoint-every", "1", "--profile", str(out.with_suffix(".json")), "--device", "cuda"])
-    assert code == 0
-    return out
+    options = [*stages, "--checkpoint-every", "1"]
+    for device in ("cpu", "cuda"):
+        out = folder / f"{device}.pt"
+        args = ["fit", str(tiny_dataset / SUBJECT), "--prior", str(prior_files[device]), "--out", str(out)]
+        with standin_cuda():
+            assert main([*args, *options, "--profile", str(out.with_suffix(".json")), "--device", device]) == 0
+    return {device: folder / f"{device}.pt" for device in ("cpu", "cuda")}
 
 
 def test_the_standin_refuses_what_cuda_refuses_and_takes_what_it_takes():
@@ -141,26 +163,24 @@ def test_poses_and_eval_compositing_stay_on_the_device():
     assert pose.translation.device == CUDA and target.device == CUDA and image.device == CUDA
 
 
-def test_prior_and_fit_on_the_device_write_cpu_files(avatar_file):
-    avatar = load_avatar(avatar_file)
+def test_train_prior_on_the_device_is_the_cpus(prior_files):
+    assert load_avatar(prior_files["cuda"]).device == torch.device("cpu")
+    assert same_tensors(prior_files["cuda"], prior_files["cpu"])
+
+
+def test_fit_on_the_device_is_the_cpus(avatar_files):
+    avatar = load_avatar(avatar_files["cuda"])
     assert avatar.device == torch.device("cpu") and avatar.pose_track is not None
     assert avatar.metadata["steps"] == {"stage1": 1, "stage2": 1, "detail": 1}
-    assert torch.isfinite(avatar.latent).all() and all(torch.isfinite(p).all() for p in avatar.model.parameters())
-    assert not avatar_file.with_name(avatar_file.name + ".ckpt").exists()
-    assert "pose settling" in json.loads(avatar_file.with_suffix(".json").read_text())["phases"]
+    assert not avatar_files["cuda"].with_name("cuda.pt.ckpt").exists()
+    assert "pose settling" in json.loads(avatar_files["cuda"].with_suffix(".json").read_text())["phases"]
+    assert same_tensors(avatar_files["cuda"], avatar_files["cpu"])
 
 
-def test_fit_resumes_on_the_device(tiny_dataset, prior_file, tmp_path, monkeypatch, patches):
-    """A fit interrupted in stage 2 (its checkpoint written from the device) resumes on the device;
-    at a finer UV resolution, the pose track settled with the held appearance."""
-    calls = []
-
-    def interrupt_second_step(name: str) -> None:
-        calls.append(name)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-
-    monkeypatch.setattr(loop_module, "interrupt_point", interrupt_second_step)
+def test_fit_resumed_on_the_device_is_the_cpus_uninterrupted(tiny_dataset, prior_files, tmp_path, monkeypatch):
+    """A fit interrupted in stage 2 (its checkpoint written from the device) resumes on the device
+    where it stopped: the CPU's uninterrupted fit. At a finer UV resolution, the pose track
+    settled with the held appearance."""
     config = FitConfig(
         stage1=steps(1),
         stage2=LoopConfig(steps=2, images_per_shard=2, checkpoint_every=1, progress=False),
@@ -169,21 +189,31 @@ def test_fit_resumes_on_the_device(tiny_dataset, prior_file, tmp_path, monkeypat
         uv_resolution=2 * TINY_MODEL["uv_resolution"],
         lpips=False,
     )
-    out = tmp_path / "avatar.pt"
+    fit(tiny_dataset / SUBJECT, prior_files["cpu"], tmp_path / "cpu.pt", config)
+    calls = []
+
+    def interrupt_second_step(name: str) -> None:
+        calls.append(name)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(loop_module, "interrupt_point", interrupt_second_step)
+    out = tmp_path / "cuda.pt"
     with standin_cuda():
         with pytest.raises(KeyboardInterrupt):
-            fit(tiny_dataset / SUBJECT, prior_file, out, config, device="cuda")
+            fit(tiny_dataset / SUBJECT, prior_files["cuda"], out, config, device="cuda")
         assert fit_module.load_checkpoint(out.with_name(out.name + ".ckpt"))["extra"] == {"stage": 2}
-        fit(tiny_dataset / SUBJECT, prior_file, out, config, resume=True, device="cuda")
+        fit(tiny_dataset / SUBJECT, prior_files["cuda"], out, config, resume=True, device="cuda")
     assert load_avatar(out).metadata["steps"] == {"stage1": 1, "stage2": 2}
+    assert same_tensors(out, tmp_path / "cpu.pt")
 
 
 @pytest.mark.parametrize("poses", [[], ["--fit-poses"], ["--refine-poses", "2"], ["--true-poses"]])
-def test_eval_on_the_device_is_the_cpus(poses, tiny_dataset, avatar_file, tmp_path, patches):
+def test_eval_on_the_device_is_the_cpus(poses, tiny_dataset, avatar_files, tmp_path, patches):
     reports = {}
     for device in ("cpu", "cuda"):
         report = tmp_path / f"{device}.json"
-        args = ["eval", str(avatar_file), str(tiny_dataset / SUBJECT), *poses, "--report", str(report)]
+        args = ["eval", str(avatar_files["cuda"]), str(tiny_dataset / SUBJECT), *poses, "--report", str(report)]
         with standin_cuda():
             assert main([*args, "--background", ",".join(map(str, BACKGROUND)), "--device", device]) == 0
         reports[device] = json.loads(report.read_text())
@@ -191,11 +221,11 @@ def test_eval_on_the_device_is_the_cpus(poses, tiny_dataset, avatar_file, tmp_pa
     assert reports["cuda"]["per_image"] == reports["cpu"]["per_image"]
 
 
-def test_render_and_export_on_the_device_are_the_cpus(tiny_dataset, avatar_file, tmp_path, patches):
+def test_render_and_export_on_the_device_are_the_cpus(tiny_dataset, avatar_files, tmp_path, patches):
     """The avatar replaying its video (its pose track) rendered, and a posed export, byte for byte."""
     motion = ["--motion", str(tiny_dataset / SUBJECT)]
-    render = ["render", str(avatar_file), *motion, "--size", "48x36", "--backend", "cpu"]
-    export = ["export", str(avatar_file), "--pose", "walk", "--frame", "3"]
+    render = ["render", str(avatar_files["cuda"]), *motion, "--size", "48x36", "--backend", "cpu"]
+    export = ["export", str(avatar_files["cuda"]), "--pose", "walk", "--frame", "3"]
     for device in ("cpu", "cuda"):
         with standin_cuda():
             assert main([*render, "--out", str(tmp_path / f"{device}.png"), "--device", device]) == 0
