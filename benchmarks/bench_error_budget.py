@@ -85,7 +85,8 @@ def budget(errors: list[np.ndarray], regions: list[dict[str, np.ndarray]]) -> li
     """Per region: its pixel share, its share of the summed squared error, its RMS and the mean PSNR
     of the frames with its error removed; errors are (H, W) per frame."""
     total = sum(float(e.sum()) for e in errors)
-    rows = [{"region": "all", "pixels %": 100.0, "error %": 100.0, "PSNR without": np.mean([psnr_of(e.mean()) for e in errors])}]
+    everything = {"pixels %": 100.0, "error %": 100.0, "RMS": math.sqrt(total / sum(e.size for e in errors))}
+    rows = [{"region": "all", **everything, "PSNR without": float(np.mean([psnr_of(e.mean()) for e in errors]))}]
     for name in REGIONS:
         pixels = sum(int(r[name].sum()) for r in regions)
         area = sum(r[name].size for r in regions)
