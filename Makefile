@@ -6,8 +6,8 @@ setup:
 
 demo: setup
 	mkdir -p out
-	.venv/bin/pghm render assets/avatar.pt --motion assets/motion/mixamo_walk_69f.bvh --orbit --out out/demo.mp4
-	.venv/bin/pghm render assets/avatar.pt --motion assets/motion/mixamo_walk_69f.bvh --start 0.5 --out out/demo.png
+	.venv/bin/pghm render assets/real_avatar.pt --motion assets/motion/mixamo_walk_69f.bvh --orbit --out out/demo.mp4
+	.venv/bin/pghm render assets/real_avatar.pt --motion assets/motion/mixamo_walk_69f.bvh --start 0.5 --out out/demo.png
 	@echo "wrote out/demo.mp4 and out/demo.png; open the live viewer with .venv/bin/pghm-view (needs a display)"
 
 test: setup

@@ -223,6 +223,7 @@ def quick_candidate() -> FitConfig:
 
 
 def run(args: argparse.Namespace) -> dict:
+    """The three parts in turn; the JSON is rewritten after each, so a run cut short keeps its parts."""
     device = rendering_device(args.device)
     if device.type != "cuda" and not args.quick:
         raise PghmError("no CUDA device here: this script measures the GPU (--device cpu --quick checks the script)")
@@ -232,22 +233,21 @@ def run(args: argparse.Namespace) -> dict:
         work = Path(args.work or scratch)
         work.mkdir(parents=True, exist_ok=True)
         started = time.perf_counter()
-        splat = splat_rows(device, sizes, repeats)
+        device_name = torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"
+        payload = {"device": device_name, "quick": args.quick}
+
+        def record(part: str, rows: list[dict]) -> None:
+            payload.update({part: rows, "seconds": round(time.perf_counter() - started, 1)})
+            Path(args.json).write_text(json.dumps({"machine": machine(), **payload}, indent=2))
+
+        record("splat", splat_rows(device, sizes, repeats))
         subject = Path(args.subject) if args.subject else monocular_subject(work, args.quick)
         resolutions = QUICK["fit"] if args.quick else FIT_RESOLUTIONS
         steps, warmup = (QUICK["speed_steps"], QUICK["warmup"]) if args.quick else (SPEED_STEPS, WARMUP_STEPS)
-        speed = speed_rows(subject, work, device, resolutions, steps, warmup)
-        candidate = candidate_rows(subject, work, device, quick_candidate() if args.quick else gpu_fit_candidate())
-        total = round(time.perf_counter() - started, 1)
-    device_name = torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"
-    return {
-        "device": device_name,
-        "quick": args.quick,
-        "seconds": total,
-        "splat": splat,
-        "fit_speed": speed,
-        "candidate": candidate,
-    }
+        record("fit_speed", speed_rows(subject, work, device, resolutions, steps, warmup))
+        config = quick_candidate() if args.quick else gpu_fit_candidate()
+        record("candidate", candidate_rows(subject, work, device, config))
+    return payload
 
 
 def main() -> int:
@@ -259,11 +259,10 @@ def main() -> int:
     parser.add_argument("--json", default=str(RESULTS / "bench_gpu.json"), help="where to write the results")
     args = parser.parse_args()
     try:
-        payload = run(args)
+        run(args)
     except PghmError as error:
         print(f"bench_gpu: error: {error}", file=sys.stderr)
         return EXIT_USER_ERROR
-    Path(args.json).write_text(json.dumps({"machine": machine(), **payload}, indent=2))
     print(f"wrote {args.json}")
     return 0
 

@@ -57,7 +57,7 @@ from pghm.splat import render
 from viewer.demo import development_avatar
 from viewer.dynamic_resolution import ResolutionSettings
 from viewer.pipeline import COLOUR_REFRESH_DEGREES, ORDER_REFRESH_DEGREES
-from viewer.settings import BACKFACE_DEGREES, DEFAULT_AVATAR
+from viewer.settings import BACKFACE_DEGREES, SYNTHETIC_AVATAR
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENE_VIEWPORT = (920, 800)
@@ -71,8 +71,8 @@ FLIP = 2e-3
 
 def the_avatar():
     """assets/avatar.pt when shipped, else the development avatar at the default config."""
-    if DEFAULT_AVATAR.is_file():
-        return load_avatar(DEFAULT_AVATAR), str(DEFAULT_AVATAR.relative_to(ROOT))
+    if SYNTHETIC_AVATAR.is_file():
+        return load_avatar(SYNTHETIC_AVATAR), str(SYNTHETIC_AVATAR.relative_to(ROOT))
     return development_avatar(), "development avatar (viewer.demo, default ModelConfig)"
 
 
@@ -628,8 +628,8 @@ def main() -> None:
             from pghm.io.avatar import save_avatar
 
             with tempfile.TemporaryDirectory() as folder:
-                path = DEFAULT_AVATAR if DEFAULT_AVATAR.is_file() else Path(folder) / "avatar.pt"
-                if not DEFAULT_AVATAR.is_file():
+                path = SYNTHETIC_AVATAR if SYNTHETIC_AVATAR.is_file() else Path(folder) / "avatar.pt"
+                if not SYNTHETIC_AVATAR.is_file():
                     save_avatar(path, avatar)
                 print("\nThe viewer in a glfw window (default 1280 x 800), Viewer.frame() ms")
                 results["window"] = bench_window(path, args.frames)
@@ -637,9 +637,9 @@ def main() -> None:
         else:
             print("\nwindow: skipped (no DISPLAY; run under Xvfb for the in-window numbers)")
     if "interactive" in args.sections:
-        if os.environ.get("DISPLAY") and DEFAULT_AVATAR.is_file():
+        if os.environ.get("DISPLAY") and SYNTHETIC_AVATAR.is_file():
             print("\nThe viewer, scene 1280 x 720: before (model on the UI thread, exact frames) and after, ms")
-            interactive = bench_interactive(DEFAULT_AVATAR, args.frames)
+            interactive = bench_interactive(SYNTHETIC_AVATAR, args.frames)
             print_interactive(interactive)
             results["interactive"] = interactive
             after = interactive["after"]

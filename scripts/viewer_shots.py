@@ -1,10 +1,11 @@
 """The viewer's documentation images: docs/viewer_screenshot.png and docs/viewer_motion_strip.png.
 
-One command (Xvfb provides the window; re-run after the shipped avatar changes):
+One command (Xvfb provides the window; re-run after the synthetic avatar changes; the real one's
+screenshot, docs/real_avatar_viewer.png, is benchmarks/real_avatar.py's):
 
     xvfb-run -a -s "-screen 0 1600x1000x24" .venv/bin/python scripts/viewer_shots.py
 
-* viewer_screenshot.png: the default window (1280 x 800) on the shipped avatar at frame 20
+* viewer_screenshot.png: the default window (1280 x 800) on the synthetic avatar at frame 20
   of the shipped Mixamo walk, settled (the exact frame), the clip list showing the clip.
 * viewer_motion_strip.png: window screenshots while the camera orbits the paused walk, then
   while the cached walk plays (reduced internal resolution in the HUD), then the settled
@@ -53,16 +54,8 @@ def main() -> None:
     viewer = Viewer(AVATAR, window_size=WINDOW_SIZE)
     viewer.setup()
     try:
-        viewer.open_motion(str(WALK))
-        viewer.scrub_to(SCREENSHOT_FRAME)
-        viewer.settle()
-        viewer.pipeline.worker.wait_background_idle()  # the clip is cached: the HUD shows its fill
-        for _ in range(IDLE_FRAMES):
-            viewer.frame()
         screenshot = out / "viewer_screenshot.png"
-        viewer.screenshot(screenshot, include_ui=True)
-        viewer.frame()
-        viewer.message = None  # "saved <absolute path>" would show in the strip's panel
+        settled_screenshot(viewer, WALK, SCREENSHOT_FRAME, screenshot)
         print(f"wrote {screenshot}")
 
         shots = []
@@ -88,6 +81,19 @@ def main() -> None:
         print(f"wrote {strip}")
     finally:
         viewer.teardown()
+
+
+def settled_screenshot(viewer: Viewer, motion: Path, frame: int, path: Path) -> None:
+    """The whole window written to ``path`` at ``frame`` of ``motion``, settled and its clip cached."""
+    viewer.open_motion(str(motion))
+    viewer.scrub_to(frame)
+    viewer.settle()
+    viewer.pipeline.worker.wait_background_idle()  # the clip is cached: the HUD shows its fill
+    for _ in range(IDLE_FRAMES):
+        viewer.frame()
+    viewer.screenshot(path, include_ui=True)
+    viewer.frame()
+    viewer.message = None  # "saved <absolute path>" would show in the next screenshot's panel
 
 
 def capture(viewer: Viewer) -> np.ndarray:

@@ -5,7 +5,7 @@ native kernel). Not the float32 splatter: it decides a rare (pixel, Gaussian) pa
 1/255 cut-off differently from float64 too (on the shipped avatar's rest pose seen from the
 front: one pixel, alpha off by 3.8e-3, while the GL image is within 2.2e-7 of float64 there).
 The GL image is read back from its float target before any 8-bit conversion. The avatar is the shipped
-default, ``assets/avatar.pt`` (trained: 11,156 Gaussians on the 128 atlas, all opacities 1), in
+synthetic one, ``assets/avatar.pt`` (trained: 11,156 Gaussians on the 128 atlas, all opacities 1), in
 three poses (rest, a walk frame, a squat frame), each seen from several views: front, a
 raised three-quarter back view, from above, and a close-up whose near plane cuts the body
 and whose footprints cross the image border.
@@ -32,7 +32,7 @@ from pghm.gl import SpriteRenderer, headless_context
 from pghm.io.avatar import load_avatar
 from pghm.render import AvatarDriver, frame_points, orbit_camera
 from pghm.splat import Camera, render
-from viewer.settings import DEFAULT_AVATAR
+from viewer.settings import SYNTHETIC_AVATAR
 
 from cutoff import BAND, MEAN_ERROR, flip_allowance, within_allowance
 
@@ -47,9 +47,9 @@ VIEWS = {"front": (0.0, 0.0, 1.0), "back_high": (135.0, 25.0, 1.0), "top": (30.0
 
 @pytest.fixture(scope="module")
 def driver():
-    if not DEFAULT_AVATAR.is_file():
-        pytest.fail(f"the shipped default avatar {DEFAULT_AVATAR} is missing")
-    return AvatarDriver(load_avatar(DEFAULT_AVATAR))
+    if not SYNTHETIC_AVATAR.is_file():
+        pytest.fail(f"the shipped synthetic avatar {SYNTHETIC_AVATAR} is missing")
+    return AvatarDriver(load_avatar(SYNTHETIC_AVATAR))
 
 
 @pytest.fixture(scope="module")

@@ -28,7 +28,7 @@ from conftest import SMALL_MODEL as SMALL
 
 from pghm.io.avatar import save_avatar
 from viewer.demo import development_avatar
-from viewer.settings import DEFAULT_AVATAR
+from viewer.settings import DEFAULT_AVATAR, SHIPPED_MOTIONS, SYNTHETIC_AVATAR
 
 pytestmark = pytest.mark.gl
 
@@ -92,10 +92,11 @@ def display():
 
 @pytest.fixture(scope="module")
 def avatar_file():
-    """The shipped default avatar, what ``pghm-view`` opens without arguments."""
-    if not DEFAULT_AVATAR.is_file():
-        pytest.fail(f"the shipped default avatar {DEFAULT_AVATAR} is missing")
-    return DEFAULT_AVATAR
+    """The shipped synthetic avatar: its Gaussians stay on its body (no halo), which the locality
+    checks rely on. ``pghm-view``'s default, the real person's avatar, has its own test."""
+    if not SYNTHETIC_AVATAR.is_file():
+        pytest.fail(f"the shipped synthetic avatar {SYNTHETIC_AVATAR} is missing")
+    return SYNTHETIC_AVATAR
 
 
 @pytest.fixture(scope="module")
@@ -373,6 +374,49 @@ def test_a_prior_picks_blends_and_moves_along_components(viewer, avatar_file, tm
     viewer.open_avatar(avatar_file)  # back to the module's avatar for the other tests
 
 
+def test_the_default_real_avatar_plays_a_motion_capture_clip(viewer, avatar_file, tmp_path):
+    """``pghm-view``'s default (a real person's avatar on the Anny body) plays the shipped walk:
+    the timeline advances and the body moves on screen."""
+    if not DEFAULT_AVATAR.is_file():
+        pytest.fail(f"the shipped default avatar {DEFAULT_AVATAR} is missing")
+    viewer.open_avatar(DEFAULT_AVATAR)
+    assert viewer.scene.driver.avatar.body_name == "anny"
+    viewer.open_motion(str(SHIPPED_MOTIONS / "mixamo_walk_69f.bvh"))
+    viewer.scrub_to(0)
+    start = scene_shot(viewer, tmp_path / "start.png")
+    viewer.set_playing(True)
+    for _ in range(10):
+        viewer.frame()
+        if viewer.scene.pose_state.frame >= 10:
+            break
+    viewer.set_playing(False)
+    assert viewer.scene.pose_state.frame > 0, "the timeline advanced"
+    later = scene_shot(viewer, tmp_path / "later.png")
+    assert changed(start, later).sum() > 500, "the body moved"
+    viewer.open_motion("rest")
+    viewer.open_avatar(avatar_file)  # back to the module's avatar for the other tests
+
+
+def test_plain_pghm_view_opens_the_default_avatar(monkeypatch):
+    """No argument: the viewer is built on DEFAULT_AVATAR (the window itself is the tests' above)."""
+    import viewer.app as app
+    import viewer.viewer
+
+    opened = []
+
+    class Recorder:
+        def __init__(self, path, **_options) -> None:
+            opened.append(path)
+
+        def run(self) -> None:
+            """No window: the test stops before the event loop."""
+
+    monkeypatch.setattr(viewer.viewer, "Viewer", Recorder)
+    monkeypatch.setattr("viewer.window.display_problem", lambda: None)
+    assert app.main([]) == 0
+    assert opened == [DEFAULT_AVATAR]
+
+
 def test_recording_a_motion_at_a_fixed_rate(viewer, tmp_path):
     viewer.open_motion("walk")
     last = viewer.scene.pose_state.motion.num_frames - 1
@@ -471,7 +515,7 @@ def test_bad_avatar_file_before_a_window_prints_one_line(display, tmp_path):
 def test_missing_default_avatar_prints_one_line(display, tmp_path, monkeypatch, capsys):
     import viewer.app as app
 
-    monkeypatch.setattr("viewer.settings.DEFAULT_AVATAR", tmp_path / "assets" / "avatar.pt")
+    monkeypatch.setattr("viewer.settings.DEFAULT_AVATAR", tmp_path / "assets" / "real_avatar.pt")
     assert app.main([]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "assets/avatar.pt" in err[0]
+    assert len(err) == 1 and "assets/real_avatar.pt" in err[0]

@@ -22,7 +22,9 @@ DEFAULT_WINDOW = (1280, 800)
 
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog="pghm-view", description="Live viewer of pghm avatars and priors.")
-    parser.add_argument("avatar", nargs="?", type=Path, help="avatar or prior file (default: the shipped avatar)")
+    parser.add_argument(
+        "avatar", nargs="?", type=Path, help="avatar or prior file (default: assets/real_avatar.pt, a real person)"
+    )
     parser.add_argument("--size", type=Size(), default=DEFAULT_WINDOW, help="window size WxH (default 1280x800)")
     parser.add_argument("--motion", help="motion to open: a .npz / .bvh file, a procedural name or a subject folder")
     parser.add_argument("--body-model-path", help="the SMPL-X model file, for SMPL-X avatars")

@@ -53,7 +53,7 @@ washed out with front-view colour; 20: 2.9e-3). The settled frame is exact whate
 ORDER_REFRESH_DEGREES = 10.0
 """While the view moves, the sprites keep the depth order of a view until the view has turned this
 far from it (benchmarks/bench_viewer.py measures the error: 10 degrees behind, mean 4e-4 RGB on the
-shipped avatar at 1280 x 720, an eighth of the reduced resolution's); once still, the exact order."""
+synthetic avatar at 1280 x 720, an eighth of the reduced resolution's); once still, the exact order."""
 WORKER_THREADS = 2
 """torch threads (process-wide, the UI thread runs almost no torch) while the worker evaluates."""
 

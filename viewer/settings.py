@@ -8,9 +8,12 @@ from pathlib import Path
 from pghm.render import GaussianSet
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
-"""What the repository ships: the trained avatar and prior, and real motion-capture clips."""
-DEFAULT_AVATAR = ASSETS / "avatar.pt"
-"""The trained default avatar."""
+"""What the repository ships: the trained avatars and prior, and real motion-capture clips."""
+DEFAULT_AVATAR = ASSETS / "real_avatar.pt"
+"""What ``pghm-view`` opens without an argument: a real person's avatar, made from a video by
+``pghm capture`` and ``pghm fit`` with their defaults (assets/SOURCE.md)."""
+SYNTHETIC_AVATAR = ASSETS / "avatar.pt"
+"""The held-out synthetic subject personalised from the prior: its ground truth is known."""
 SHIPPED_MOTIONS = ASSETS / "motion"
 """Real motion-capture clips (BVH); the motion browser starts here."""
 WINDOW_SIZE = (1280, 800)

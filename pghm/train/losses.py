@@ -69,7 +69,7 @@ def window_means(images: Tensor, window: Tensor) -> Tensor:
     """(B, C, H - k + 1, W - k + 1): each channel of (B, C, H, W) filtered by the separable window
     (k,), valid positions only, rows first (as pytorch-msssim)."""
     channels, size = images.shape[1], window.numel()
-    taps = window.to(images.dtype)
+    taps = window.to(images)
     rows = F.conv2d(images, taps.view(1, 1, size, 1).expand(channels, 1, size, 1), groups=channels)
     return F.conv2d(rows, taps.view(1, 1, 1, size).expand(channels, 1, 1, size), groups=channels)
 
