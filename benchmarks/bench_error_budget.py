@@ -148,7 +148,8 @@ def true_views(subject: Path, indices: list[int], seed: int) -> dict[int, tuple[
     box = (crop["x"], crop["y"], crop["x"] + crop["width"], crop["y"] + crop["height"])
 
     def cut(pixels: np.ndarray) -> np.ndarray:
-        return np.asarray(Image.fromarray(pixels).resize(size, Image.Resampling.LANCZOS, box=box)).astype(np.float64) / 255
+        resized = Image.fromarray(pixels).resize(size, Image.Resampling.LANCZOS, box=box)
+        return np.asarray(resized).astype(np.float64) / 255
 
     views = {}
     try:
@@ -168,7 +169,8 @@ def boundary_px(captured: np.ndarray, true: np.ndarray) -> float:
 
 def mask_agreement(captured: list[np.ndarray], true: list[np.ndarray]) -> dict:
     iou = [float((c & t).sum() / max(1, (c | t).sum())) for c, t in zip(captured, true)]
-    return {"iou": float(np.mean(iou)), "boundary_px": float(np.mean([boundary_px(c, t) for c, t in zip(captured, true)]))}
+    boundary = [boundary_px(c, t) for c, t in zip(captured, true)]
+    return {"iou": float(np.mean(iou)), "boundary_px": float(np.mean(boundary))}
 
 
 def main() -> None:
@@ -184,7 +186,9 @@ def main() -> None:
     setup_threads()
     torch.manual_seed(0)
     frames = refined_frames(args.avatar, args.subject, args.steps)
-    truth = true_views(args.subject, [f[0] for f in frames], args.turning_seed) if args.turning_seed is not None else None
+    truth = None
+    if args.turning_seed is not None:
+        truth = true_views(args.subject, [f[0] for f in frames], args.turning_seed)
     payload = {"avatar": args.avatar.name, "subject": args.subject.name, "steps": args.steps, "bands": {}}
     for band in args.band:
         regions = [

@@ -24,9 +24,9 @@ def disc_coverage(radius: float) -> np.ndarray:
     offsets = (np.arange(SUPERSAMPLE) + 0.5) / SUPERSAMPLE
     samples = np.arange(SIZE)[:, None] + offsets[None, :]
     centre = SIZE / 2
-    dx = samples.reshape(-1)[None, :] - centre
-    inside = (dx[:, :, None] ** 2 + dx[:, None, :] ** 2 <= radius**2).reshape(1, SIZE, SUPERSAMPLE, SIZE, SUPERSAMPLE)
-    return inside.transpose(0, 1, 2, 3, 4).reshape(SIZE, SUPERSAMPLE, SIZE, SUPERSAMPLE).mean((1, 3))
+    d = samples.reshape(-1) - centre  # sample coordinates along either axis, from the centre
+    inside = d[:, None] ** 2 + d[None, :] ** 2 <= radius**2
+    return inside.reshape(SIZE, SUPERSAMPLE, SIZE, SUPERSAMPLE).mean((1, 3))
 
 
 def frame(coverage: np.ndarray, person: np.ndarray, wall: np.ndarray) -> np.ndarray:
