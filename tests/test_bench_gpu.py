@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from standin_device import standin_cuda
 
 BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
 
@@ -45,3 +46,19 @@ def test_quick_on_cpu_writes_every_part(bench, monkeypatch, tmp_path):
     assert payload["splat"][0]["psnr"] > 60  # float32 against float64 on the CPU: the same image
     assert payload["fit_speed"][0]["steps_per_s"] > 0
     assert payload["candidate"][0]["run"] == "gpu_fit_candidate on cpu"
+
+
+def test_quick_on_a_standin_gpu_writes_every_part(bench, monkeypatch, tmp_path):
+    """The script's CUDA path (gsplat, the fits and eval on the device) on the stand-in device of
+    tests/standin_device.py, which refuses a CPU tensor where CUDA's kernels would."""
+    for name, value in (("is_available", True), ("device_count", 1), ("get_device_name", "stand-in")):
+        monkeypatch.setattr(torch.cuda, name, lambda device=None, value=value: value)
+    monkeypatch.setattr(torch.cuda, "synchronize", lambda device=None: None)
+    out = tmp_path / "out.json"
+    args = ["--device", "cuda", "--quick", "--work", str(tmp_path), "--json", str(out)]
+    with standin_cuda():
+        assert run_main(bench, monkeypatch, *args) == 0
+    payload = json.loads(out.read_text())
+    assert payload["device"] == "stand-in"
+    assert payload["splat"][0]["psnr"] > 60  # the stand-in's gsplat is the CPU splatter in float32
+    assert payload["candidate"][0]["run"] == "gpu_fit_candidate on cuda"

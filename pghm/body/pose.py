@@ -86,7 +86,7 @@ class BodyPose:
                 f"pose field 'rotations' has shape {tuple(rot.shape)}, expected ({num_bones}, 3) or (B, {num_bones}, 3)"
             )
         if translation is None:
-            trans = torch.zeros(rot.shape[0], 3, dtype=rot.dtype)
+            trans = torch.zeros(rot.shape[0], 3, dtype=rot.dtype, device=rot.device)
         else:
             trans = _as_float_tensor("translation", translation, rot.dtype)
             if trans.ndim == 1:

@@ -133,7 +133,7 @@ def render_images(
 def on_background(sample: Sample, rgb_on_black: Tensor, alpha: Tensor, background: tuple[float, float, float]):
     """(target, render), each (3, H, W) in [0, 1], on ``background``: on white the stored image
     (the paper's measure), elsewhere the image moved through its alpha matte."""
-    colour = torch.tensor(background, dtype=rgb_on_black.dtype).view(3, 1, 1)
+    colour = torch.tensor(background, dtype=rgb_on_black.dtype, device=rgb_on_black.device).view(3, 1, 1)
     image = composite_render(rgb_on_black, alpha[None], colour).clamp(0, 1)
     target = sample.image if background == WHITE else composite_target(sample.image, sample.mask, colour)
     return target, image

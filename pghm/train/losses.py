@@ -83,7 +83,7 @@ class TargetSsim:
     """
 
     def __init__(self, target: Tensor) -> None:
-        self.window = gaussian_window()
+        self.window = gaussian_window().to(target)  # made once where the images are
         self.target = target
         mu, second = window_means(torch.cat([target, target * target], 1), self.window).chunk(2, 1)
         self.mu, self.mu_sq = mu, mu.square()
