@@ -63,6 +63,15 @@ def true_masks_in_subject(truth, subject: Subject) -> np.ndarray:
     return np.stack([np.asarray(m.resize(size, Image.Resampling.NEAREST)) > 0 for m in masks])
 
 
+def true_mattes_in_subject(truth, subject: Subject) -> np.ndarray:
+    """(F, H', W') float: every true alpha matte cut to the capture's region and resized to the images (bilinear)."""
+    crop = subject.meta["crop"]
+    box = (crop["x"], crop["y"], crop["x"] + crop["width"], crop["y"] + crop["height"])
+    size = (int(subject.arrays.width[0]), int(subject.arrays.height[0]))
+    mattes = [Image.fromarray(c.astype(np.float32) / 255, mode="F") for c in truth.coverage]
+    return np.stack([np.asarray(m.resize(size, Image.Resampling.BILINEAR, box=box)) for m in mattes])
+
+
 def captured_masks(subject_dir, count: int) -> np.ndarray:
     return np.stack([read_mask(subject_dir / "masks" / image_name(i)) > 0.5 for i in range(count)])
 
@@ -108,6 +117,17 @@ def test_mask_iou_floor(captured):
     per_frame = np.zeros(FRAMES)
     per_frame[frames] = iou(captured_masks(out, len(frames)), true_masks_in_subject(truth, subject)[frames])
     assert per_frame.mean() >= IOU_FLOOR
+
+
+def test_matte_is_nearer_the_true_alpha_than_its_mask(captured):
+    """The stored matte (colour-model alpha on the outline) is nearer the generator's coverage than
+    the binary mask it came from (its pixels at least half covered)."""
+    truth, out, _ = captured
+    subject = Subject.open(out)
+    frames = np.asarray(subject.arrays.frame_index)
+    mattes = np.stack([read_mask(out / "masks" / image_name(i)) for i in range(len(frames))])
+    true = true_mattes_in_subject(truth, subject)[frames]
+    assert np.abs(mattes - true).mean() < np.abs((mattes >= 0.5) - true).mean()
 
 
 def test_pa_mpjpe_floor(captured, body):

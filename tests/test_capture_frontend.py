@@ -235,10 +235,13 @@ def test_real_video_first_frames(subject_folder):
         world = obs.landmarks_3d[k]
         assert np.linalg.norm(world[[23, 24]].mean(0)) < 0.05
         assert 0.2 < np.linalg.norm(world[11] - world[12]) < 0.6
-    # The subject images on disk are the frames composited on white through the masks.
+    # The subject images on disk are the frames composited on white through their mattes, whose
+    # half-covered pixels are the masks.
     image = np.asarray(Image.open(subject_folder / "subject" / "images" / "000000.png"))
+    matte = np.asarray(Image.open(subject_folder / "subject" / "masks" / "000000.png"))
     assert image.shape == (height, width, 3)
-    assert (image[~np.asarray(obs.masks[0])] == 255).all()
+    assert (image[matte == 0] == 255).all()
+    assert np.array_equal(matte >= 128, np.asarray(obs.masks[0]))
 
 
 def test_two_people_the_tracked_one_is_followed(subject_folder):

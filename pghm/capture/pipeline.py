@@ -2,7 +2,7 @@
 
     reader ──► pass 1: track the person on frames scaled to 512 px (boxes only)
            ──► crop: the region the person occupies over the video, intrinsics adjusted
-           ──► pass 2: the cropped frames at the subject's size: mask, landmarks, images written
+           ──► pass 2: the cropped frames at the subject's size: mask, landmarks, matte, images written
            ──► body fit (pghm.capture.bodyfit): shape, per-frame pose, camera
            ──► cameras.npz, poses.npz, splits.json, meta.json (docs/data.md)
 
@@ -41,6 +41,7 @@ from pghm.capture.frontend import (
     native_logs_silenced,
     track_person,
 )
+from pghm.capture.matte import colour_matte, on_white
 from pghm.capture.video import ImageFolder, VideoFile, open_source, scaled_size
 from pghm.errors import PghmError, listed
 from pghm.io.outputs import check_output, staged_folder
@@ -150,14 +151,16 @@ def _observe(
                     lost.append(index)
                 else:
                     k = len(kept)
+                    alpha, background = colour_matte(image, found.mask)
+                    matte = np.round(alpha * WHITE).astype(np.uint8)  # the alpha stored is the one composited with
+                    alpha = matte / np.float32(WHITE)
                     masks[k], landmarks_2d[k], confidence[k], landmarks_3d[k] = (
-                        found.mask,
+                        alpha >= 0.5,
                         found.landmarks_2d,
                         found.confidence,
                         found.landmarks_3d,
                     )
-                    composite = np.where(found.mask[..., None], image, np.uint8(WHITE))
-                    write_image(folder, k, composite, found.mask.astype(np.uint8) * WHITE)
+                    write_image(folder, k, on_white(image, alpha, background), matte)
                     kept.append(index)
                 bar.update()
             if index >= last:

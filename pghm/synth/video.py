@@ -33,7 +33,7 @@ from pghm.io.atomic import atomic_path
 from pghm.subject import SubjectArrays
 from pghm.synth.config import PRESETS, SynthConfig
 from pghm.synth.generate import plan_subject, release_worker_gl, render_views
-from pghm.synth.render import RenderedView
+from pghm.synth.render import MASK_COVERAGE, RenderedView
 
 VIDEO_CRF = 23
 """libx264's constant rate factor (its default): visible blocking at edges and in flat
@@ -52,11 +52,13 @@ class WalkTruth:
             (F, 4, 4), rotations_true (F, J, 3), translation_true (F, 3), shape (S,), ...
         masks: (F, H, W) bool, the person's true mask (coverage >= half a pixel).
         fps: frames per second of the video.
+        coverage: (F, H, W) uint8, 255 x the covered fraction of each pixel: the true alpha matte.
     """
 
     arrays: SubjectArrays
     masks: np.ndarray
     fps: float
+    coverage: np.ndarray
 
 
 def walk_config(
@@ -122,7 +124,7 @@ def render_walk_video(
     if background.shape != (config.height, config.width, 3) or background.dtype != np.uint8:
         raise PghmError(f"walk video: background must be ({config.height}, {config.width}, 3) uint8")
     plan = plan_subject(config, load_body("anny"), seed, SUBJECT_INDEX)
-    masks = np.zeros((config.frames, config.height, config.width), dtype=bool)
+    coverage = np.zeros((config.frames, config.height, config.width), dtype=np.uint8)
     with atomic_path(out, suffix=Path(out).suffix) as temporary:  # a killed render leaves no half video
         writer = imageio_ffmpeg.write_frames(
             str(temporary),
@@ -138,9 +140,9 @@ def render_walk_video(
         try:
             views = render_views(config, plan, list(range(config.frames)))
             for i, view in tqdm(views, total=config.frames, desc="walk video", disable=not progress, file=sys.stderr):
-                masks[i] = view.mask > 0
+                coverage[i] = view.coverage
                 writer.send(np.ascontiguousarray(composite(view, background)))
         finally:
             writer.close()
             release_worker_gl()
-    return WalkTruth(plan.arrays, masks, config.fps)
+    return WalkTruth(plan.arrays, coverage >= round(255 * MASK_COVERAGE), config.fps, coverage)
