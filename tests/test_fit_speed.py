@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import math
 import os
+import subprocess
+import sys
 import time
 from dataclasses import replace
 
@@ -13,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from pghm.cli.threads import intra_op_threads
+from pghm.cli.threads import busy_cores, cpu_ticks, current_load, intra_op_threads
 from pghm.splat import Camera, render
 from pghm.train import profile
 from pghm.train.data import TrainingData
@@ -88,6 +90,42 @@ def test_without_a_profile_the_marks_do_nothing():
 )
 def test_the_thread_policy_leaves_the_busy_cores_alone(cores, load, threads):
     assert intra_op_threads(cores, load) == threads
+
+
+STAT_BEFORE = """cpu  300 0 100 1000 0 0 0 0 0 0
+cpu0 100 0 50 500 10 0 0 0 0 0
+cpu1 200 0 50 500 0 0 0 0 0 0
+cpu2 0 0 0 0 0 0 0 0 0 0
+intr 12345"""
+STAT_AFTER = """cpu  330 0 100 1010 0 0 0 0 0 0
+cpu0 120 0 50 505 15 0 0 0 0 0
+cpu1 210 0 60 500 0 0 0 0 0 0
+cpu2 0 0 0 0 0 0 0 0 0 0
+intr 12399"""
+
+
+def test_busy_cores_from_two_stat_readings():
+    """cpu0: 20 busy of 30 ticks; cpu1: 20 of 20; the aggregate and other lines ignored."""
+    cpus = {0, 1}
+    before, after = cpu_ticks(STAT_BEFORE, cpus), cpu_ticks(STAT_AFTER, cpus)
+    assert before == (400, 1410) and after == (440, 1460)
+    assert busy_cores(before, after, 2) == pytest.approx(2 * 40 / 50)
+    assert cpu_ticks(STAT_AFTER, {1}) == (270, 770)
+    assert busy_cores(before, before, 2) == 0.0
+
+
+def test_a_busy_loop_beside_takes_a_core_at_once():
+    """A CPU-bound process started a moment ago counts as a busy core (the one-minute load average
+    would barely have moved), so a 1-core budget leaves no thread to it: the reading is at least
+    0.8 core, 20 ticks' sampling error under the core the loop holds."""
+    loop = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        time.sleep(0.3)
+        cpus = set(os.sched_getaffinity(0))
+        assert current_load(cpus) >= 0.8
+    finally:
+        loop.kill()
+        loop.wait()
 
 
 def _scene(seed: int = 0):

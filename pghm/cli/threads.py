@@ -9,24 +9,33 @@ times longer than twice its idle time (docs/training.md, "Speed"). So, before to
 
     OMP_WAIT_POLICY = PASSIVE          (libgomp: a waiting thread sleeps at once)
 
-and, once it is, torch's intra-op threads are :func:`intra_op_threads` of the cores and the
-one-minute load average the command starts under. A user's ``OMP_WAIT_POLICY`` or
+and, once it is, torch's intra-op threads are :func:`intra_op_threads` of the cores and of how
+busy other processes keep them as the command starts: their share of the command's cores over
+:data:`SAMPLE_SECONDS` (``/proc/stat``), not the one-minute load average, which still counts a
+process that ended a minute ago (a capture just before a fit). A user's ``OMP_WAIT_POLICY`` or
 ``OMP_NUM_THREADS`` wins over both.
 """
 
 from __future__ import annotations
 
 import os
+import time
 
 WAIT_POLICY = "PASSIVE"
 """OpenMP's wait policy for torch's threads (see the module doc)."""
 BUSY_CORE_LOAD = 0.5
-"""Load average (runnable processes) from which a core counts as busy: a load of 0.5 to 1.5 takes
-one core, 1.5 to 2.5 two, and so on (other processes' work, as the command starts before its own)."""
+"""Busy cores (other processes' work) from which a core counts as taken: 0.5 to 1.5 take one core,
+1.5 to 2.5 two, and so on."""
+SAMPLE_SECONDS = 0.2
+"""How long the cores' use is sampled before the command's own work starts (20 scheduler ticks per
+core at Linux's 100 Hz: a busy fraction to 5 %)."""
+STAT = "/proc/stat"
+IDLE_FIELDS = (3, 4)
+"""Of a ``cpuN`` line's tick counters (user nice system idle iowait irq softirq steal ...), the idle ones."""
 
 
 def intra_op_threads(cores: int, load: float) -> int:
-    """Threads for torch's operators on ``cores`` cores with a one-minute load average ``load``:
+    """Threads for torch's operators on ``cores`` cores of which other processes keep ``load`` busy:
     one per core that other processes leave free, at least one:
 
         threads = clamp(cores - floor(load + 1 - BUSY_CORE_LOAD), 1, cores).
@@ -40,12 +49,49 @@ def set_wait_policy() -> None:
     os.environ.setdefault("OMP_WAIT_POLICY", WAIT_POLICY)
 
 
-def _cores() -> int:
+def _cpus() -> set[int]:
     """The cores this process may run on (its affinity mask: ``taskset`` counts)."""
     try:
-        return len(os.sched_getaffinity(0))
+        return set(os.sched_getaffinity(0))
     except AttributeError:  # not Linux
-        return os.cpu_count() or 1
+        return set(range(os.cpu_count() or 1))
+
+
+def cpu_ticks(stat: str, cpus: set[int]) -> tuple[int, int]:
+    """(busy, total) scheduler ticks summed over the ``cpuN`` lines of ``stat`` (/proc/stat's text)
+    whose N is in ``cpus``."""
+    busy = total = 0
+    for line in stat.splitlines():
+        name, *fields = line.split()
+        if not (name.startswith("cpu") and name[3:].isdigit() and int(name[3:]) in cpus):
+            continue
+        ticks = [int(field) for field in fields[:8]]
+        idle = sum(ticks[i] for i in IDLE_FIELDS)
+        busy, total = busy + sum(ticks) - idle, total + sum(ticks)
+    return busy, total
+
+
+def busy_cores(before: tuple[int, int], after: tuple[int, int], cores: int) -> float:
+    """Cores kept busy between two :func:`cpu_ticks` readings of ``cores`` cores (0 when no tick passed)."""
+    busy, total = after[0] - before[0], after[1] - before[1]
+    return cores * busy / total if total > 0 else 0.0
+
+
+def current_load(cpus: set[int]) -> float:
+    """Cores of ``cpus`` other processes keep busy now (sampled for SAMPLE_SECONDS while this one
+    sleeps); the one-minute load average where there is no /proc/stat."""
+    try:
+        with open(STAT) as file:
+            before = cpu_ticks(file.read(), cpus)
+        time.sleep(SAMPLE_SECONDS)
+        with open(STAT) as file:
+            after = cpu_ticks(file.read(), cpus)
+    except OSError:
+        try:
+            return os.getloadavg()[0]
+        except OSError:  # neither (not Linux or BSD): assume idle cores
+            return 0.0
+    return busy_cores(before, after, len(cpus))
 
 
 def set_threads() -> int:
@@ -54,10 +100,7 @@ def set_threads() -> int:
 
     if os.environ.get("OMP_NUM_THREADS"):
         return torch.get_num_threads()
-    try:
-        load = os.getloadavg()[0]
-    except OSError:  # no load average (not Linux or BSD): assume idle cores
-        load = 0.0
-    threads = intra_op_threads(_cores(), load)
+    cpus = _cpus()
+    threads = intra_op_threads(len(cpus), current_load(cpus))
     torch.set_num_threads(threads)
     return threads
