@@ -101,6 +101,7 @@ def set_threads() -> int:
     if os.environ.get("OMP_NUM_THREADS"):
         return torch.get_num_threads()
     cpus = _cpus()
-    threads = intra_op_threads(len(cpus), current_load(cpus))
+    # One core leaves nothing to decide: no need to sample its use.
+    threads = intra_op_threads(len(cpus), current_load(cpus)) if len(cpus) > 1 else 1
     torch.set_num_threads(threads)
     return threads

@@ -125,9 +125,9 @@ def coarse_sample(sample: Sample, factor: int = COARSE_FACTOR) -> Sample:
 
 
 def _halves(samples: list[Sample]) -> bool:
-    """Whether the coarse steps of these images render at a lower resolution (:data:`COARSE_MIN_SIDE`)."""
-    camera = samples[0].camera if samples else None
-    return camera is not None and min(camera.width, camera.height) // COARSE_FACTOR >= COARSE_MIN_SIDE
+    """Whether the coarse steps of these (one or more) images render at a lower resolution (:data:`COARSE_MIN_SIDE`)."""
+    camera = samples[0].camera
+    return min(camera.width, camera.height) // COARSE_FACTOR >= COARSE_MIN_SIDE
 
 
 def _one_view_per_frame(data: TrainingData, images: list[int]) -> bool:
@@ -256,13 +256,13 @@ class _Settling:
     def _batch(self, objective: AvatarObjective, optimizer: LazyAdam, samples: list[Sample], position: int) -> None:
         """All the steps of one batch of ``samples``, the ``position``-th batch of the refinement."""
         steps, coarse_steps = self.steps, self.coarse_steps
+        if not samples:
+            self.bar.update(steps)
+            return
         with profile.part(profile.DATA):
             coarse = [coarse_sample(sample) for sample in samples] if coarse_steps and _halves(samples) else samples
         if self.held:
             objective.release()
-        if not samples:
-            self.bar.update(steps)
-            return
         parameters = list(objective.corrections.parameters())
         for step in range(steps):
             if self.held:
