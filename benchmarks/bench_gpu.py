@@ -52,6 +52,7 @@ SUBJECT_SEED = 1
 CPU_RESULTS = RESULTS / "bench_resolution.json"
 CPU_ROW = {"L": 128, "steps": 500, "image_scale": 1.0, "from": "prior"}
 """The row of CPU_RESULTS that is the CPU default fit (its metadata: 50 + 450 steps at L = 128)."""
+PARTS = ("splat", "fit_speed", "candidate")
 SPLAT_SIZES = ((128, 512), (256, 512), (256, 1024))
 """(L whose texel count sets N, image side) of the splat comparison."""
 FIT_RESOLUTIONS = (128, 256, 512)
@@ -240,19 +241,23 @@ def run(args: argparse.Namespace) -> dict:
             payload.update({part: rows, "seconds": round(time.perf_counter() - started, 1)})
             Path(args.json).write_text(json.dumps({"machine": machine(), **payload}, indent=2))
 
-        record("splat", splat_rows(device, sizes, repeats))
+        if "splat" in args.parts:
+            record("splat", splat_rows(device, sizes, repeats))
         subject = Path(args.subject) if args.subject else monocular_subject(work, args.quick)
-        resolutions = QUICK["fit"] if args.quick else FIT_RESOLUTIONS
-        steps, warmup = (QUICK["speed_steps"], QUICK["warmup"]) if args.quick else (SPEED_STEPS, WARMUP_STEPS)
-        record("fit_speed", speed_rows(subject, work, device, resolutions, steps, warmup))
-        config = quick_candidate() if args.quick else gpu_fit_candidate()
-        record("candidate", candidate_rows(subject, work, device, config))
+        if "fit_speed" in args.parts:
+            resolutions = QUICK["fit"] if args.quick else FIT_RESOLUTIONS
+            steps, warmup = (QUICK["speed_steps"], QUICK["warmup"]) if args.quick else (SPEED_STEPS, WARMUP_STEPS)
+            record("fit_speed", speed_rows(subject, work, device, resolutions, steps, warmup))
+        if "candidate" in args.parts:
+            config = quick_candidate() if args.quick else gpu_fit_candidate()
+            record("candidate", candidate_rows(subject, work, device, config))
     return payload
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    parser.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS), help="which parts to run (default: all)")
     parser.add_argument("--quick", action="store_true", help="toy sizes, to check the script (numbers mean nothing)")
     parser.add_argument("--subject", help="subject_000 of `pghm synth --config mono --seed 1` (default: made here)")
     parser.add_argument("--work", help="folder for the subject and the avatars (default: a temporary one)")
