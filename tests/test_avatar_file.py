@@ -164,6 +164,9 @@ def test_pose_track_round_trip_and_bad_tracks(tmp_path):
     for name in ("frames", "bones", "rotations", "translation"):
         assert torch.equal(getattr(loaded, name), track[name])
     assert loaded.poses == track["poses"] and load_avatar(write_payload(tmp_path / "b.pt")).pose_track is None
+    assert loaded.aligned.tolist() == []  # a track saved before the fit aligned held-out frames: none are
+    aligned = load_avatar(write_payload(tmp_path / "c.pt", pose_track={**track, "aligned": track["frames"][1:2]}))
+    assert aligned.pose_track.aligned.tolist() == track["frames"][1:2].tolist()
     cases = {
         "not_a_dict": ([1, 2], "must hold frames"),
         "missing": ({k: v for k, v in track.items() if k != "bones"}, "must hold frames"),
@@ -174,6 +177,8 @@ def test_pose_track_round_trip_and_bad_tracks(tmp_path):
         "rotations_shape": ({**track, "rotations": torch.randn(3, 3, 3)}, "pose_track.rotations' has shape"),
         "translation_nan": ({**track, "translation": torch.full((3, 3), float("nan"))}, "non-finite"),
         "digest": ({**track, "poses": 7}, "digest"),
+        "aligned_unknown": ({**track, "aligned": track["frames"][-1:] + 1}, "aligned' lists frames the track has no"),
+        "aligned_float": ({**track, "aligned": torch.tensor([0.0])}, "pose_track.aligned' is not"),
     }
     for name, (value, match) in cases.items():
         expect_error(write_payload(tmp_path / f"{name}.pt", pose_track=value), match)

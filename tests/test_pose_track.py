@@ -62,11 +62,11 @@ def test_a_correction_linear_in_time_is_carried_exactly(subject, body):
     track = learned_track(learned, train)
     assert track.frames.tolist() == [0, 2]
     held_out, counts = track_corrections(track, TrainingData(subject, split="test"), body)
-    assert counts == {"trained": 0, "interpolated": 1, "stored": 0}
+    assert counts == {"trained": 0, "aligned": 0, "interpolated": 1, "stored": 0}
     torch.testing.assert_close(held_out.rotations[1], v_rot)
     torch.testing.assert_close(held_out.translation[1], v_trans)
     own, counts = track_corrections(track, TrainingData(subject, split="own"), body)
-    assert counts == {"trained": 1, "interpolated": 0, "stored": 0}
+    assert counts == {"trained": 1, "aligned": 0, "interpolated": 0, "stored": 0}
     assert torch.equal(own.rotations[0], learned.rotations[0])
 
 
@@ -86,7 +86,7 @@ def test_a_frame_aligned_to_its_image_keeps_its_stored_pose(subject, body):
     np.testing.assert_allclose(played[1] - played_stored(subject)[1], [0.03, 0.0, 0.0], atol=1e-6)  # interpolated
     (subject / "meta.json").write_text(json.dumps({**meta, "aligned_frames": [1, 2]}))
     held_out, counts = track_corrections(track, TrainingData(subject, split="test"), body)
-    assert counts == {"trained": 0, "interpolated": 0, "stored": 1}
+    assert counts == {"trained": 0, "aligned": 0, "interpolated": 0, "stored": 1}
     assert not held_out.translation[1].any() and not held_out.rotations[1].any()
     played = subject_motion(subject, track).translation
     np.testing.assert_allclose(played - played_stored(subject), [[0.02, 0, 0], [0, 0, 0], [0.04, 0, 0]], atol=1e-6)

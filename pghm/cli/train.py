@@ -159,6 +159,14 @@ def register(subparsers) -> None:
         f"each frame fewer than {TRACK_MIN_VISITS} times; else 0)",
     )
     fit.add_argument(
+        "--held-out-steps",
+        type=STEPS,
+        default=None,
+        help="pose refinement steps per frame outside the training split once the avatar is finished, which align "
+        f"the held-out frames to their images (default: {TRACK_STEPS} for poses stated noisier than 2 degrees, "
+        "as a capture's; else 0)",
+    )
+    fit.add_argument(
         "--uv-resolution",
         type=Integer(MIN_RESOLUTION, MAX_RESOLUTION),
         default=None,
@@ -201,8 +209,9 @@ def register(subparsers) -> None:
     evaluate.add_argument(
         "--fit-poses",
         action="store_true",
-        help="render with the poses the avatar's fit learned for its video: the training frames' corrections, "
-        "interpolated onto the held-out frames between them (no held-out image is used)",
+        help="render with the poses the avatar's fit learned for its video: the training frames' corrections; "
+        "on held-out frames, those the fit aligned to their images after training (a capture's, counted in the "
+        "report), else the training frames' interpolated",
     )
     evaluate.add_argument(
         "--background",
@@ -286,6 +295,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         refine_poses=not args.no_pose_refinement,
         pose_smoothing=args.pose_smoothing,
         track_steps=args.track_steps,
+        held_out_steps=args.held_out_steps,
         uv_resolution=args.uv_resolution,
         detail=replace(stages[1], steps=args.detail_steps),
         lpips=not args.no_lpips,

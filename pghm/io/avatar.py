@@ -87,6 +87,8 @@ class PoseTrack:
         rotations: (F, K, 3) axis-angle deltas added to the stored rotations of those bones.
         translation: (F, 3) deltas added to the stored root translation.
         poses: digest of the stored poses they correct (:meth:`pghm.subject.SubjectArrays.poses_digest`).
+        aligned: (A,) int64 those of ``frames`` the fit held out of training and aligned to their own
+            images once the avatar was finished (:func:`pghm.train.fit.align_held_out`), ascending.
     """
 
     frames: Tensor
@@ -94,6 +96,7 @@ class PoseTrack:
     rotations: Tensor
     translation: Tensor
     poses: str
+    aligned: Tensor = field(default_factory=lambda: torch.zeros(0, dtype=torch.int64))
 
     def at(
         self, frames: np.ndarray, max_gap: int, aligned: frozenset[int] = frozenset()
@@ -247,6 +250,7 @@ def _track_payload(track: PoseTrack) -> dict:
         "rotations": track.rotations.detach().float().cpu(),
         "translation": track.translation.detach().float().cpu(),
         "poses": track.poses,
+        "aligned": track.aligned.detach().long().cpu(),
     }
 
 
@@ -315,12 +319,17 @@ def _load_track(path: Path, value: object) -> PoseTrack | None:
     bones = _check_indices(path, "pose_track.bones", value["bones"])
     if not isinstance(value["poses"], str):
         raise _fail(path, "'pose_track.poses' is not a digest string")
+    # Files written before the fit aligned its held-out frames have no "aligned": none are.
+    aligned = _check_indices(path, "pose_track.aligned", value.get("aligned", torch.zeros(0, dtype=torch.int64)))
+    if not bool(torch.isin(aligned, frames).all()):
+        raise _fail(path, "'pose_track.aligned' lists frames the track has no correction for")
     return PoseTrack(
         frames=frames,
         bones=bones,
         rotations=_check_tensor(path, "pose_track.rotations", value["rotations"], (len(frames), len(bones), 3)),
         translation=_check_tensor(path, "pose_track.translation", value["translation"], (len(frames), 3)),
         poses=value["poses"],
+        aligned=aligned,
     )
 
 

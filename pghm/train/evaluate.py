@@ -163,8 +163,9 @@ def evaluate(
         refine_poses: steps of test-time pose refinement (:mod:`pghm.train.pose_refine`) before
             rendering: the held-out frames' poses fitted to their images, the avatar frozen; 0: off.
         fit_poses: render with the avatar's pose track (:mod:`pghm.train.pose_track`): the
-            corrections its fit learned on the training frames, interpolated onto the held-out
-            frames between them (no held-out image is looked at).
+            corrections its fit learned on the training frames, and on the held-out frames those
+            the fit aligned to their images once the avatar was finished (a capture's; the report
+            counts them), else the training frames' interpolated.
         device: where the avatar renders (and its poses are refined); metrics are computed on the CPU.
     """
     background = tuple(float(c) for c in background)
@@ -197,7 +198,10 @@ def evaluate(
     if fit_poses:
         corrections, counts = track_corrections(avatar.pose_track, data, load_body(data.body_name, body_model_path))
         corrections = corrections.to(avatar.device)
-        poses = "the fit's pose track ({trained} frames trained on, {interpolated} interpolated, {stored} as stored)"
+        poses = (
+            "the fit's pose track ({trained} frames trained on, {aligned} held out and aligned to their images "
+            "after the fit, {interpolated} interpolated, {stored} as stored)"
+        )
         poses = poses.format(**counts)
     if refine_poses > 0:
         started = time.perf_counter()

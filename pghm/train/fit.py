@@ -9,7 +9,9 @@ optimised together, with per-frame pose corrections when ``refine_poses``; the a
 them as its pose track (:mod:`pghm.train.pose_track`).
 Then, for poses stated noisier than the synthetic data's (a capture) whose frames stage 2 visits
 too rarely, the track is settled: every training frame's correction refined against its image
-with the avatar frozen, coarse to fine (:mod:`pghm.train.pose_refine`; :func:`track_steps`).
+with the avatar frozen, coarse to fine (:mod:`pghm.train.pose_refine`; :func:`track_steps`),
+and the frames held out of training are aligned to their own images the same way
+(:func:`align_held_out`), so every frame of the video replays aligned.
 Both stages train on crops around the person (:mod:`pghm.train.person_crop`).
 Last, when ``detail`` has steps, a detail layer trains on the frozen avatar (:mod:`pghm.train.detail`).
 """
@@ -21,12 +23,14 @@ import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import numpy as np
 import torch
 from torch import nn
 
 from pghm.device import move
 from pghm.errors import PghmError
-from pghm.io.avatar import Avatar, load_avatar, recorded_path, save_avatar
+from pghm.body import load_body
+from pghm.io.avatar import Avatar, PoseTrack, load_avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig
 from pghm.model.pghm import COMPONENTS
 from pghm.train import profile
@@ -48,7 +52,8 @@ from pghm.train.losses import LossWeights
 from pghm.train.optim import LazyAdam
 from pghm.train.person_crop import CROP_MARGIN
 from pghm.train.pose_refine import refine_poses
-from pghm.train.pose_track import learned_track
+from pghm.subject import ALL_SPLIT
+from pghm.train.pose_track import frames_of, learned_track, track_corrections
 from pghm.train.run_setup import GeometryCache, checkpoint_path, config_record, lpips_for
 
 log = logging.getLogger(__name__)
@@ -124,6 +129,10 @@ class FitConfig:
     """Steps of pose refinement per training frame after stage 2, the avatar frozen, that settle
     the pose track (:data:`TRACK_STEPS`); None: :func:`track_steps` of the subject's stated noise
     and of stage 2's visits per frame."""
+    held_out_steps: int | None = None
+    """Steps of pose refinement per frame held out of training, once the avatar is finished, that
+    align it to its own image (:func:`align_held_out`); None: :func:`held_out_steps` of the
+    subject's stated noise."""
     uv_resolution: int | None = None
     """L of the avatar's UV maps; None: the prior's. Another L carries the prior's weights over
     (:meth:`PGHM.at_resolution`): (L / L_prior)^2 times as many Gaussians, finer detail, longer
@@ -199,6 +208,51 @@ def track_steps(rotation_sigma: float, visits: float) -> int:
     return TRACK_STEPS if rotation_sigma > ESTIMATOR_ROTATION_SIGMA and visits < TRACK_MIN_VISITS else 0
 
 
+def held_out_steps(rotation_sigma: float) -> int:
+    """The default steps that align the held-out frames' poses: :data:`TRACK_STEPS` for poses stated
+    noisier than the synthetic data's (``rotation_sigma`` radians > 2 degrees: a capture's), else 0.
+    A capture's estimates are a few pixels off, which no interpolation of the training frames'
+    corrections fixes (their errors change from frame to frame); a synthetic subject's are not."""
+    return TRACK_STEPS if rotation_sigma > ESTIMATOR_ROTATION_SIGMA else 0
+
+
+def align_held_out(avatar: Avatar, subject_dir: str | Path, config: FitConfig, steps: int) -> PoseTrack:
+    """The avatar's pose track extended to every frame of its subject it was not trained on, each
+    aligned to its own image for ``steps`` steps, the avatar frozen.
+
+    A held-out frame starts from the training frames' corrections interpolated onto it
+    (:func:`pghm.train.pose_track.track_corrections`) and is refined as the fit settles its
+    training frames: coarse to fine, the dynamic render's loss, a batch of frames per core. Its
+    image moves its pose only: the avatar's weights are those the training frames gave (tested).
+    The track lists these frames in :attr:`PoseTrack.aligned`, and ``pghm eval --fit-poses``
+    reports them, since their poses have seen their images.
+    """
+    data = TrainingData(subject_dir, split=ALL_SPLIT, crop_margin=config.crop_margin)
+    trained = set(avatar.pose_track.frames.tolist())
+    frame_of = data.subjects[0].arrays.frame_index
+    held = [int(i) for i in data.images[0] if int(i if frame_of is None else frame_of[i]) not in trained]
+    if not held or not steps:
+        return avatar.pose_track
+    corrections, _ = track_corrections(avatar.pose_track, data, load_body(data.body_name, config.body_model_path))
+    refine_poses(
+        avatar,
+        data,
+        steps,
+        config.stage2.loss,
+        POSE_LR,
+        corrections.to(avatar.device),
+        images=held,
+        body_model_path=config.body_model_path,
+        progress=config.stage2.progress,
+        desc="fit: align held-out poses",
+        coarse_steps=max(steps - config.track_fine_steps, 0),
+        dynamic_only=True,
+        workers=torch.get_num_threads(),
+    )
+    aligned = np.setdiff1d(frames_of(data), avatar.pose_track.frames.numpy())
+    return replace(learned_track(corrections, data), aligned=torch.as_tensor(aligned, dtype=torch.int64))
+
+
 def initial_latent(model: PGHM) -> torch.Tensor:
     """(1, C, L, L) on the model's device: the decoded mean of the bank's latents (a fresh latent
     for an empty bank)."""
@@ -241,8 +295,9 @@ def fit(
     """
     device = torch.device(device)
     config = config or FitConfig()
-    if config.track_steps is not None and config.track_steps < 0:
-        raise PghmError(f"track_steps must be >= 0, got {config.track_steps}")
+    for name in ("track_steps", "held_out_steps"):
+        if getattr(config, name) is not None and getattr(config, name) < 0:
+            raise PghmError(f"{name} must be >= 0, got {getattr(config, name)}")
     if config.track_fine_steps < 0:
         raise PghmError(f"track_fine_steps must be >= 0, got {config.track_fine_steps}")
     for name in ("latent_lr", "network_lr", "pose_lr", "detail_lr"):
@@ -257,6 +312,8 @@ def fit(
         raise PghmError(f"{subject_dir}: fit takes one subject folder, found {data.num_identities}")
     if config.pose_lr is None:
         config = replace(config, pose_lr=pose_learning_rate(data.pose_noise[0][0]))
+    if config.held_out_steps is None:
+        config = replace(config, held_out_steps=held_out_steps(data.pose_noise[0][0]))
     if config.track_steps is None:
         stage2 = config.stage2
         visits = stage2.steps * stage2.images_per_shard * stage2.shards / max(len(data.images[0]), 1)
@@ -380,6 +437,12 @@ def fit(
                 )
             avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
         avatar.pose_track = move(learned_track(corrections, data), torch.device("cpu"))  # a record, as in the file
+        if config.held_out_steps:
+            started = time.perf_counter()
+            with profile.phase("held-out poses"):
+                avatar.pose_track = move(align_held_out(avatar, subject_dir, config, config.held_out_steps), torch.device("cpu"))
+            avatar.metadata["held_out_seconds"] = round(time.perf_counter() - started, 1)
+            avatar.metadata["held_out_frames"] = len(avatar.pose_track.aligned)
     if config.detail.steps:
         with profile.phase("detail"):
             avatar.model, detail = train_detail(

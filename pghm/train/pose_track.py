@@ -29,7 +29,7 @@ from pghm.io.avatar import MAX_BRACKET_STEPS, PoseTrack
 from pghm.train.data import PoseCorrections, TrainingData
 
 
-def _frames_of(data: TrainingData) -> np.ndarray:
+def frames_of(data: TrainingData) -> np.ndarray:
     """(F,) distinct frame numbers of the data's (single subject's) images, ascending."""
     subject = data.subjects[0]
     images = data.images[0]
@@ -39,7 +39,7 @@ def _frames_of(data: TrainingData) -> np.ndarray:
 
 def learned_track(corrections: PoseCorrections, data: TrainingData) -> PoseTrack:
     """The pose track of a fit: ``corrections``' rows of the frames ``data`` (one subject) trains on."""
-    frames = _frames_of(data)
+    frames = frames_of(data)
     rows = torch.as_tensor(frames + data.frame_offsets[0])
     return PoseTrack(
         frames=torch.as_tensor(frames, dtype=torch.int64),
@@ -54,8 +54,10 @@ def track_corrections(track: PoseTrack, data: TrainingData, body: BodyModel) -> 
     """Corrections of every frame of ``data`` (one subject, e.g. its test split) from ``track``.
 
     Returns the corrections and how many of the data's frames took a trained frame's own
-    correction ("trained"), an interpolated one ("interpolated") or none ("stored": not bracketed
-    by trained frames, or aligned to its own image, meta.json's ``aligned_frames``).
+    correction ("trained"), their own correction aligned to their image after the fit
+    ("aligned", :attr:`PoseTrack.aligned`), an interpolated one ("interpolated") or none
+    ("stored": not bracketed by trained frames, or aligned to its own image by the capture,
+    meta.json's ``aligned_frames``).
     """
     subject = data.subjects[0]
     if track.poses != subject.arrays.poses_digest():
@@ -66,11 +68,17 @@ def track_corrections(track: PoseTrack, data: TrainingData, body: BodyModel) -> 
     corrections = data.pose_corrections(body)
     if not torch.equal(track.bones, corrections.bones):
         raise PghmError(f"the avatar's pose track corrects other bones than {data.body_name}'s estimated joints")
-    frames = _frames_of(data)
+    frames = frames_of(data)
     aligned = subject.aligned_frames()
     rotations, translation, found, exact = track.at(frames, MAX_BRACKET_STEPS * subject.arrays.frame_step(), aligned)
     rows = torch.as_tensor(frames[found] + data.frame_offsets[0])
     with torch.no_grad():
         corrections.rotations[rows], corrections.translation[rows] = rotations[found], translation[found]
-    counts = {"trained": int(exact.sum()), "interpolated": int((found & ~exact).sum()), "stored": int((~found).sum())}
+    seen = exact & np.isin(frames, track.aligned.numpy())
+    counts = {
+        "trained": int((exact & ~seen).sum()),
+        "aligned": int(seen.sum()),
+        "interpolated": int((found & ~exact).sum()),
+        "stored": int((~found).sum()),
+    }
     return corrections.requires_grad_(False), counts

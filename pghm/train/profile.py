@@ -5,7 +5,7 @@ pair, the innermost one open, so the parts of the table sum to the total by cons
 
     total = sum over phases p, parts q of  t(p, q)
 
-Phases are the fit's stretches (setup, stage 1, stage 2, pose settling, save); parts are what a
+Phases are the fit's stretches (setup, stage 1, stage 2, pose settling, held-out poses, save); parts are what a
 step does (:data:`PARTS`). The backward pass is one call into autograd; hooks on the renders and
 on the Gaussians it splats (:func:`mark_backward`) switch the part as the gradient crosses them,
 splitting it into the losses', the splatter's and the network's backward. CPU time is the whole
