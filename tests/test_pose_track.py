@@ -142,16 +142,29 @@ def test_fit_records_its_track_and_eval_with_it_undoes_a_known_error(subject, tm
 
 
 def test_the_pose_learning_rate_and_the_track_settling_follow_the_stated_noise(subject, tmp_path):
-    """sigma_0 / sigma times the synthetic data's rate, never above it; the track settled only for
-    poses noisier than sigma_0; a fit of a subject that states 8 degrees records both."""
+    """sigma_0 / sigma times the synthetic data's rate, never above it; the poses settled (between
+    the stages, else after stage 2) and the held-out frames aligned only for poses noisier than
+    sigma_0; a fit of a subject that states 8 degrees records them."""
     import math
 
     from pghm.train.data import ESTIMATOR_ROTATION_SIGMA
-    from pghm.train.fit import POSE_LR, TRACK_MIN_VISITS, TRACK_STEPS, pose_learning_rate, track_steps
+    from pghm.train.fit import (
+        EARLY_TRACK_STEPS,
+        POSE_LR,
+        TRACK_MIN_VISITS,
+        TRACK_STEPS,
+        early_track_steps,
+        held_out_steps,
+        pose_learning_rate,
+        track_steps,
+    )
 
     assert pose_learning_rate(ESTIMATOR_ROTATION_SIGMA) == POSE_LR
-    assert track_steps(ESTIMATOR_ROTATION_SIGMA, 1.0) == 0 and track_steps(math.radians(9.5), 1.0) == TRACK_STEPS
-    assert track_steps(math.radians(9.5), TRACK_MIN_VISITS) == 0
+    assert track_steps(ESTIMATOR_ROTATION_SIGMA, 1.0, 0) == 0 and track_steps(math.radians(9.5), 1.0, 0) == TRACK_STEPS
+    assert track_steps(math.radians(9.5), TRACK_MIN_VISITS, 0) == 0
+    assert track_steps(math.radians(9.5), 1.0, EARLY_TRACK_STEPS) == 0  # settled between the stages
+    assert early_track_steps(ESTIMATOR_ROTATION_SIGMA) == held_out_steps(ESTIMATOR_ROTATION_SIGMA) == 0
+    assert early_track_steps(math.radians(9.5)) == EARLY_TRACK_STEPS and held_out_steps(math.radians(9.5)) == TRACK_STEPS
     assert pose_learning_rate(ESTIMATOR_ROTATION_SIGMA / 4) == POSE_LR
     assert pose_learning_rate(math.radians(8.0)) == pytest.approx(POSE_LR / 4)
     meta = json.loads((subject / "meta.json").read_text())
@@ -160,6 +173,9 @@ def test_the_pose_learning_rate_and_the_track_settling_follow_the_stated_noise(s
     stages = [LoopConfig(steps=n, images_per_shard=2, checkpoint_every=0) for n in (1, 1)]
     avatar = fit(subject, ModelConfig(**TINY_MODEL), tmp_path / "a.pt", FitConfig(*stages, lpips=False))
     assert avatar.metadata["config"]["pose_lr"] == pytest.approx(POSE_LR / 4)
-    assert avatar.metadata["config"]["track_steps"] == TRACK_STEPS
+    assert avatar.metadata["config"]["early_track_steps"] == EARLY_TRACK_STEPS
+    assert avatar.metadata["config"]["track_steps"] == 0
+    unsettled = fit(subject, ModelConfig(**TINY_MODEL), tmp_path / "c.pt", FitConfig(*stages, lpips=False, early_track_steps=0))
+    assert unsettled.metadata["config"]["track_steps"] == TRACK_STEPS
     explicit = FitConfig(*stages, lpips=False, pose_lr=1e-3)
     assert fit(subject, ModelConfig(**TINY_MODEL), tmp_path / "b.pt", explicit).metadata["config"]["pose_lr"] == 1e-3

@@ -26,7 +26,7 @@ from pghm.io.outputs import PNG_SUFFIXES, check_output
 from pghm.model import ModelConfig
 from pghm.model.config import MAX_CHANNELS
 from pghm.train.background import BACKGROUND_KINDS, WHITE
-from pghm.train.fit import TRACK_MIN_VISITS, TRACK_STEPS, FitConfig
+from pghm.train.fit import EARLY_TRACK_STEPS, TRACK_MIN_VISITS, TRACK_STEPS, FitConfig
 from pghm.train.loop import MAX_LEARNING_RATE, LoopConfig
 from pghm.train.losses import LossWeights
 from pghm.train.prior import PriorConfig
@@ -157,6 +157,14 @@ def register(subparsers) -> None:
         help="pose refinement steps per training frame after stage 2, which settle the avatar's pose track "
         f"(default: {TRACK_STEPS} for poses stated noisier than 2 degrees, as a capture's, when stage 2 visits "
         f"each frame fewer than {TRACK_MIN_VISITS} times; else 0)",
+    )
+    fit.add_argument(
+        "--early-track-steps",
+        type=STEPS,
+        default=None,
+        help="coarse pose refinement steps per training frame between the stages, against the stage-1 avatar, so "
+        f"stage 2 learns from aligned frames (default: {EARLY_TRACK_STEPS} for poses stated noisier than 2 degrees, "
+        "as a capture's; else 0)",
     )
     fit.add_argument(
         "--held-out-steps",
@@ -295,6 +303,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         refine_poses=not args.no_pose_refinement,
         pose_smoothing=args.pose_smoothing,
         track_steps=args.track_steps,
+        early_track_steps=args.early_track_steps,
         held_out_steps=args.held_out_steps,
         uv_resolution=args.uv_resolution,
         detail=replace(stages[1], steps=args.detail_steps),

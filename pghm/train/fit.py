@@ -2,16 +2,18 @@
 "Personalization with Parametric Avatar Prior").
 
 Stage 1, identity-map adaptation: the decoded identity map is replaced by a new learnable
-full-resolution latent (C x L x L, bypassing the Feature Decoder), initialised with the
-decoded mean of the bank's latents, and optimised alone; the network is frozen.
-Stage 2, joint tuning: the latent and the U-Net (E_u, E_p, E_v and the decoders) are
-optimised together, with per-frame pose corrections when ``refine_poses``; the avatar keeps
-them as its pose track (:mod:`pghm.train.pose_track`).
-Then, for poses stated noisier than the synthetic data's (a capture) whose frames stage 2 visits
-too rarely, the track is settled: every training frame's correction refined against its image
-with the avatar frozen, coarse to fine (:mod:`pghm.train.pose_refine`; :func:`track_steps`),
-and the frames held out of training are aligned to their own images the same way
-(:func:`align_held_out`), so every frame of the video replays aligned.
+full-resolution latent (C x L x L, bypassing the Feature Decoder), initialised with the decoded mean of
+the bank's latents, and optimised alone; the network is frozen. For poses stated noisier than the
+synthetic data's (a capture), each training frame's pose is then settled coarsely against that
+stage-1 avatar (:func:`early_track_steps`), so stage 2 learns appearance from aligned frames.
+Stage 2, joint tuning: the latent and the U-Net (E_u, E_p, E_v and the decoders) are optimised
+together, with per-frame pose corrections when ``refine_poses``; the avatar keeps them as its pose
+track (:mod:`pghm.train.pose_track`).
+Then, for a capture whose frames stage 2 visits too rarely, the track is settled: every training
+frame's correction refined against its image with the avatar frozen, coarse to fine
+(:mod:`pghm.train.pose_refine`; :func:`track_steps`), and the frames held out of training are
+aligned to their own images the same way (:func:`align_held_out`), so every frame of the video
+replays aligned.
 Both stages train on crops around the person (:mod:`pghm.train.person_crop`).
 Last, when ``detail`` has steps, a detail layer trains on the frozen avatar (:mod:`pghm.train.detail`).
 """
@@ -35,7 +37,7 @@ from pghm.model import PGHM, ModelConfig
 from pghm.model.pghm import COMPONENTS
 from pghm.train import profile
 from pghm.train.background import TRAINING_BACKGROUND
-from pghm.train.data import ESTIMATOR_ROTATION_SIGMA, TrainingData
+from pghm.train.data import ESTIMATOR_ROTATION_SIGMA, PoseCorrections, TrainingData
 from pghm.train.detail import DETAIL_LR, train_detail
 from pghm.train.loop import (
     AvatarObjective,
@@ -80,6 +82,11 @@ TRACK_FINE_STEPS = 10
 coarse (:mod:`pghm.train.pose_refine`): half the resolution, the network's maps held, a third of the
 time. Six leave the held-out frames a little worse aligned than a fully live settling, ten a little
 better (docs/lab/fit-speed.md)."""
+
+EARLY_TRACK_STEPS = 20
+"""Coarse settling steps per training frame between the stages (:func:`early_track_steps`): stage 2
+then learns the person's appearance from frames aligned to the stage-1 avatar rather than a few
+pixels off, which sharpens it (docs/training.md, "The pose track")."""
 
 TRACK_MIN_VISITS = 20
 """Stage 2 visits per training frame (its steps x images per step / training images) from which its
@@ -129,6 +136,9 @@ class FitConfig:
     """Steps of pose refinement per training frame after stage 2, the avatar frozen, that settle
     the pose track (:data:`TRACK_STEPS`); None: :func:`track_steps` of the subject's stated noise
     and of stage 2's visits per frame."""
+    early_track_steps: int | None = None
+    """Coarse steps of pose refinement per training frame between the stages, against the stage-1
+    avatar (:data:`EARLY_TRACK_STEPS`); None: :func:`early_track_steps` of the subject's stated noise."""
     held_out_steps: int | None = None
     """Steps of pose refinement per frame held out of training, once the avatar is finished, that
     align it to its own image (:func:`align_held_out`); None: :func:`held_out_steps` of the
@@ -199,13 +209,23 @@ def pose_learning_rate(rotation_sigma: float) -> float:
     return POSE_LR * min(1.0, ESTIMATOR_ROTATION_SIGMA / rotation_sigma)
 
 
-def track_steps(rotation_sigma: float, visits: float) -> int:
-    """The default steps that settle the pose track: :data:`TRACK_STEPS` for poses stated noisier than
-    the synthetic data's (``rotation_sigma`` radians > 2 degrees: a capture's) whose frames stage 2
-    visits fewer than :data:`TRACK_MIN_VISITS` times each (``visits``), else 0. A synthetic subject's
+def track_steps(rotation_sigma: float, visits: float, early_steps: int) -> int:
+    """The default steps that settle the pose track after stage 2: :data:`TRACK_STEPS` for poses
+    stated noisier than the synthetic data's (``rotation_sigma`` radians > 2 degrees: a capture's)
+    whose frames stage 2 visits fewer than :data:`TRACK_MIN_VISITS` times each (``visits``) and
+    that were not settled between the stages (``early_steps`` 0), else 0. A synthetic subject's
     corrections are within stage 2's reach (the shipped avatar is unchanged), and so are those of a
-    short video; the settling's cost grows with the frames (docs/training.md, "Speed")."""
+    short video; a track settled between the stages ends as well aligned without it
+    (docs/training.md, "The pose track")."""
+    if early_steps:
+        return 0
     return TRACK_STEPS if rotation_sigma > ESTIMATOR_ROTATION_SIGMA and visits < TRACK_MIN_VISITS else 0
+
+
+def early_track_steps(rotation_sigma: float) -> int:
+    """The default coarse steps that settle the training frames' poses between the stages:
+    :data:`EARLY_TRACK_STEPS` for poses stated noisier than the synthetic data's (a capture's), else 0."""
+    return EARLY_TRACK_STEPS if rotation_sigma > ESTIMATOR_ROTATION_SIGMA else 0
 
 
 def held_out_steps(rotation_sigma: float) -> int:
@@ -214,6 +234,38 @@ def held_out_steps(rotation_sigma: float) -> int:
     A capture's estimates are a few pixels off, which no interpolation of the training frames'
     corrections fixes (their errors change from frame to frame); a synthetic subject's are not."""
     return TRACK_STEPS if rotation_sigma > ESTIMATOR_ROTATION_SIGMA else 0
+
+
+def settle(
+    avatar: Avatar,
+    data: TrainingData,
+    corrections: PoseCorrections,
+    config: FitConfig,
+    steps: int,
+    coarse_steps: int,
+    what: str,
+    images: list[int] | None = None,
+) -> None:
+    """The fit's settling pass: ``corrections``' rows of the frames of ``data`` (or of its
+    ``images``) refined against their images for ``steps`` steps, the first ``coarse_steps`` coarse,
+    ``avatar`` frozen (:func:`pghm.train.pose_refine.refine_poses`: the fit's loss on the dynamic
+    render, the rate of poses as noisy as the synthetic data's, a batch of frames per core)."""
+    refine_poses(
+        avatar,
+        data,
+        steps,
+        config.stage2.loss,
+        POSE_LR,
+        corrections,
+        images=images,
+        body_model_path=config.body_model_path,
+        progress=config.stage2.progress,
+        desc=f"fit: {what}",
+        hold_appearance=config.hold_appearance,
+        coarse_steps=coarse_steps,
+        dynamic_only=True,
+        workers=torch.get_num_threads(),
+    )
 
 
 def align_held_out(avatar: Avatar, subject_dir: str | Path, config: FitConfig, steps: int) -> PoseTrack:
@@ -234,21 +286,8 @@ def align_held_out(avatar: Avatar, subject_dir: str | Path, config: FitConfig, s
     if not held or not steps:
         return avatar.pose_track
     corrections, _ = track_corrections(avatar.pose_track, data, load_body(data.body_name, config.body_model_path))
-    refine_poses(
-        avatar,
-        data,
-        steps,
-        config.stage2.loss,
-        POSE_LR,
-        corrections.to(avatar.device),
-        images=held,
-        body_model_path=config.body_model_path,
-        progress=config.stage2.progress,
-        desc="fit: align held-out poses",
-        coarse_steps=max(steps - config.track_fine_steps, 0),
-        dynamic_only=True,
-        workers=torch.get_num_threads(),
-    )
+    corrections = corrections.to(avatar.device)
+    settle(avatar, data, corrections, config, steps, max(steps - config.track_fine_steps, 0), "align held-out poses", held)
     aligned = np.setdiff1d(frames_of(data), avatar.pose_track.frames.numpy())
     return replace(learned_track(corrections, data), aligned=torch.as_tensor(aligned, dtype=torch.int64))
 
@@ -295,7 +334,7 @@ def fit(
     """
     device = torch.device(device)
     config = config or FitConfig()
-    for name in ("track_steps", "held_out_steps"):
+    for name in ("track_steps", "early_track_steps", "held_out_steps"):
         if getattr(config, name) is not None and getattr(config, name) < 0:
             raise PghmError(f"{name} must be >= 0, got {getattr(config, name)}")
     if config.track_fine_steps < 0:
@@ -314,10 +353,12 @@ def fit(
         config = replace(config, pose_lr=pose_learning_rate(data.pose_noise[0][0]))
     if config.held_out_steps is None:
         config = replace(config, held_out_steps=held_out_steps(data.pose_noise[0][0]))
+    if config.early_track_steps is None:
+        config = replace(config, early_track_steps=early_track_steps(data.pose_noise[0][0]))
     if config.track_steps is None:
         stage2 = config.stage2
         visits = stage2.steps * stage2.images_per_shard * stage2.shards / max(len(data.images[0]), 1)
-        config = replace(config, track_steps=track_steps(data.pose_noise[0][0], visits))
+        config = replace(config, track_steps=track_steps(data.pose_noise[0][0], visits, config.early_track_steps))
     check_step_memory(data, config.stage1, "fit stage 1")
     check_step_memory(data, config.stage2, "fit stage 2")
     check_step_memory(data, config.detail, "fit detail stage")
@@ -365,6 +406,16 @@ def fit(
                 description="fit 1/2",
             )
 
+    early_seconds = None
+    if start_stage == 1 and corrections is not None and config.early_track_steps:
+        started = time.perf_counter()
+        with profile.phase("early settling"):
+            stage1 = Avatar(model=model, kind="avatar", body_name=data.body_name, shape=data.shape(0), latent=latent.detach())
+            steps = config.early_track_steps
+            settle(stage1, data, corrections, config, steps, steps, "settle poses on the stage-1 avatar")
+        model.train()
+        corrections.requires_grad_(True)
+        early_seconds = round(time.perf_counter() - started, 1)
     network = network_parameters(model)
     for p in network:
         p.requires_grad_(True)
@@ -412,6 +463,8 @@ def fit(
             "config": config_record(config),
         },
     )
+    if early_seconds is not None:
+        avatar.metadata["early_track_seconds"] = early_seconds
     for p in model.parameters():
         p.requires_grad_(True)
     check_trained([state1, state2], out)  # before settling: no minutes spent on a failed fit
@@ -419,22 +472,9 @@ def fit(
     if corrections is not None and not config.pose_smoothing:
         if config.track_steps:
             started = time.perf_counter()
-            loss = config.stage2.loss
             with profile.phase("pose settling"):
-                refine_poses(
-                    avatar,
-                    data,
-                    config.track_steps,
-                    loss,
-                    POSE_LR,
-                    corrections,
-                    progress=config.stage2.progress,
-                    desc="fit: settle poses",
-                    hold_appearance=config.hold_appearance,
-                    coarse_steps=max(config.track_steps - config.track_fine_steps, 0),
-                    dynamic_only=True,
-                    workers=torch.get_num_threads(),  # the thread policy's cores, one frame batch on each
-                )
+                coarse = max(config.track_steps - config.track_fine_steps, 0)
+                settle(avatar, data, corrections, config, config.track_steps, coarse, "settle poses")
             avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
         avatar.pose_track = move(learned_track(corrections, data), torch.device("cpu"))  # a record, as in the file
         if config.held_out_steps:
