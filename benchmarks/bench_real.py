@@ -37,7 +37,8 @@ PGHM = [sys.executable, "-m", "pghm.cli.main"]
 REFINE_STEPS = 30
 """Test-time pose refinement steps of the refined evaluation (as evaluations of monocular avatars do)."""
 EVALUATIONS = {"stored": [], "fit": ["--fit-poses"], "refined": ["--refine-poses", str(REFINE_STEPS)]}
-"""Name -> ``pghm eval`` options: the held-out frames' poses as captured, as the fit learned them, refined."""
+"""Name -> ``pghm eval`` options: the held-out frames' poses as captured, as the fit left them (a
+capture's fit aligns them to their images, the avatar frozen), refined from the captured ones."""
 WALL = ((196, 190, 178), (150, 140, 128))
 """A plain wall over a floor (top and bottom colours of the synthetic videos' background)."""
 BUSY_LOOP = [sys.executable, "-c", "while True: pass"]
