@@ -93,11 +93,12 @@ def prior_files(tiny_dataset, tmp_path_factory, patches) -> dict[str, Path]:
 
 @pytest.fixture(scope="module")
 def avatar_files(tiny_dataset, prior_files, tmp_path_factory, patches) -> dict[str, Path]:
-    """``pghm fit --device cpu`` and ``--device cuda`` with every stage: 1 step each of stage 1,
-    stage 2 (pose corrections), the pose settling and the detail stage, a checkpoint after every
-    step, profiled."""
+    """``pghm fit --device cpu`` and ``--device cuda`` with every stage: 1 step each of stage 1, the
+    settling between the stages, stage 2 (pose corrections), the pose settling, the held-out
+    frame's alignment and the detail stage, a checkpoint after every step, profiled."""
     folder = tmp_path_factory.mktemp("avatars")
     stages = ["--stage1-steps", "1", "--stage2-steps", "1", "--track-steps", "1", "--detail-steps", "1"]
+    stages += ["--early-track-steps", "1", "--held-out-steps", "1"]
     options = [*stages, "--checkpoint-every", "1"]
     for device in ("cpu", "cuda"):
         out = folder / f"{device}.pt"
@@ -173,7 +174,9 @@ def test_fit_on_the_device_is_the_cpus(avatar_files):
     assert avatar.device == torch.device("cpu") and avatar.pose_track is not None
     assert avatar.metadata["steps"] == {"stage1": 1, "stage2": 1, "detail": 1}
     assert not avatar_files["cuda"].with_name("cuda.pt.ckpt").exists()
-    assert "pose settling" in json.loads(avatar_files["cuda"].with_suffix(".json").read_text())["phases"]
+    phases = json.loads(avatar_files["cuda"].with_suffix(".json").read_text())["phases"]
+    assert {"early settling", "pose settling", "held-out poses"} <= set(phases)
+    assert avatar.pose_track.aligned.tolist() == [2]  # the tiny subject's test frame
     assert same_tensors(avatar_files["cuda"], avatar_files["cpu"])
 
 
