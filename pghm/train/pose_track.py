@@ -1,21 +1,21 @@
 """The poses a fit learned for its video, carried to the frames it held out.
 
 Stage 2 of ``pghm fit`` corrects the stored pose of every training frame
-(:class:`~pghm.train.data.PoseCorrections`), and for a capture the fit may then settle those
-corrections against the finished avatar (:func:`pghm.train.fit.track_steps`); the avatar keeps
-them as its pose track (:class:`~pghm.io.avatar.PoseTrack`). A capture's pose error changes
-little from one frame to the next (its body fit is smoothed over time), so a held-out frame f
-between two trained frames a < f < b takes their corrections interpolated in time,
+(:class:`~pghm.train.data.PoseCorrections`); the avatar keeps the corrections as its pose track
+(:class:`~pghm.io.avatar.PoseTrack`). A held-out frame f between two trained frames a < f < b
+takes their corrections interpolated in time,
 
     delta_f = (1 - w) delta_a + w delta_b,    w = (f - a) / (b - a),
 
 on top of its own stored pose (:meth:`~pghm.io.avatar.PoseTrack.at`; the avatar replaying its
-video, :func:`~pghm.motion.open_motion.subject_motion`, does the same). A frame that was itself
-trained on (another camera's view of a training instant) takes its own correction exactly. A
-frame not bracketed by trained frames at most :data:`~pghm.io.avatar.MAX_BRACKET_STEPS` frame
-steps apart (a novel pose after the video, or a long stretch of dropped frames) keeps its stored
-pose. Only the training images were used: nothing here looks at the held-out images (unlike
-``pghm eval --refine-poses``).
+video, :func:`~pghm.motion.open_motion.subject_motion`, does the same). That carries what
+neighbouring frames' errors share, not an estimate's own error, so a capture's fit then aligns
+each held-out frame to its own image from there (:func:`pghm.train.fit.align_held_out`), and the
+track keeps those corrections too, listed as ``aligned``: those frames' poses have seen their
+images, as with ``pghm eval --refine-poses``. A frame that was itself trained on (another camera's
+view of a training instant) takes its own correction exactly. A frame not bracketed by trained
+frames at most :data:`~pghm.io.avatar.MAX_BRACKET_STEPS` frame steps apart (a novel pose after the
+video, or a long stretch of dropped frames) keeps its stored pose.
 """
 
 from __future__ import annotations
