@@ -257,7 +257,9 @@ def run(args: argparse.Namespace) -> dict:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
-    parser.add_argument("--parts", nargs="+", choices=PARTS, default=list(PARTS), help="which parts to run (default: all)")
+    parser.add_argument(
+        "--parts", nargs="+", choices=PARTS, default=list(PARTS), help="which parts to run (default: all)"
+    )
     parser.add_argument("--quick", action="store_true", help="toy sizes, to check the script (numbers mean nothing)")
     parser.add_argument("--subject", help="subject_000 of `pghm synth --config mono --seed 1` (default: made here)")
     parser.add_argument("--work", help="folder for the subject and the avatars (default: a temporary one)")

@@ -164,7 +164,8 @@ def test_the_pose_learning_rate_and_the_track_settling_follow_the_stated_noise(s
     assert track_steps(math.radians(9.5), TRACK_MIN_VISITS, 0) == 0
     assert track_steps(math.radians(9.5), 1.0, EARLY_TRACK_STEPS) == 0  # settled between the stages
     assert early_track_steps(ESTIMATOR_ROTATION_SIGMA) == held_out_steps(ESTIMATOR_ROTATION_SIGMA) == 0
-    assert early_track_steps(math.radians(9.5)) == EARLY_TRACK_STEPS and held_out_steps(math.radians(9.5)) == TRACK_STEPS
+    assert early_track_steps(math.radians(9.5)) == EARLY_TRACK_STEPS
+    assert held_out_steps(math.radians(9.5)) == TRACK_STEPS
     assert pose_learning_rate(ESTIMATOR_ROTATION_SIGMA / 4) == POSE_LR
     assert pose_learning_rate(math.radians(8.0)) == pytest.approx(POSE_LR / 4)
     meta = json.loads((subject / "meta.json").read_text())
@@ -175,7 +176,8 @@ def test_the_pose_learning_rate_and_the_track_settling_follow_the_stated_noise(s
     assert avatar.metadata["config"]["pose_lr"] == pytest.approx(POSE_LR / 4)
     assert avatar.metadata["config"]["early_track_steps"] == EARLY_TRACK_STEPS
     assert avatar.metadata["config"]["track_steps"] == 0
-    unsettled = fit(subject, ModelConfig(**TINY_MODEL), tmp_path / "c.pt", FitConfig(*stages, lpips=False, early_track_steps=0))
+    unsettled_config = FitConfig(*stages, lpips=False, early_track_steps=0)
+    unsettled = fit(subject, ModelConfig(**TINY_MODEL), tmp_path / "c.pt", unsettled_config)
     assert unsettled.metadata["config"]["track_steps"] == TRACK_STEPS
     explicit = FitConfig(*stages, lpips=False, pose_lr=1e-3)
     assert fit(subject, ModelConfig(**TINY_MODEL), tmp_path / "b.pt", explicit).metadata["config"]["pose_lr"] == 1e-3

@@ -300,7 +300,10 @@ def test_a_capture_fit_settles_its_pose_track_towards_the_true_poses(tiny_datase
     stages = [LoopConfig(steps=n, checkpoint_every=0) for n in (4, 4)]
     avatars = {
         steps: fit(
-            shifted, prior_file, tmp_path / f"{steps}.pt", FitConfig(*stages, lpips=False, track_steps=steps, early_track_steps=0, held_out_steps=0)
+            shifted,
+            prior_file,
+            tmp_path / f"{steps}.pt",
+            FitConfig(*stages, lpips=False, track_steps=steps, early_track_steps=0, held_out_steps=0),
         )
         for steps in (0, None)
     }
@@ -329,7 +332,8 @@ def test_a_capture_fit_settles_its_poses_on_the_stage_1_avatar(tiny_dataset, pri
         config = FitConfig(*stages, lpips=False, early_track_steps=steps, track_steps=0, held_out_steps=0)
         avatar = fit(shifted, prior_file, tmp_path / f"{steps}.pt", config)
         left[steps] = float((torch.from_numpy(POSE_SHIFT) + avatar.pose_track.translation).norm(dim=1).max())
-    assert avatar.metadata["config"]["early_track_steps"] == EARLY_TRACK_STEPS and "early_track_seconds" in avatar.metadata
+    assert avatar.metadata["config"]["early_track_steps"] == EARLY_TRACK_STEPS
+    assert "early_track_seconds" in avatar.metadata
     assert left[0] == pytest.approx(float(np.linalg.norm(POSE_SHIFT)))
     assert left[None] < 0.85 * left[0], left
 

@@ -74,8 +74,8 @@ def subject_motion(directory: str | Path, track: PoseTrack | None = None) -> Mot
     With ``track``, the pose track of an avatar fitted on this subject, every frame takes the
     corrections the fit learned for it (:meth:`PoseTrack.at`: a trained frame its own, a held-out
     one the fit aligned to its image its own too, another its neighbours' interpolated unless the
-    capture aligned it to its image): the avatar replays its video with the poses it was fitted with. A track learned on other poses (its
-    digest differs) is ignored.
+    capture aligned it to its image): the avatar replays its video with the poses it was fitted
+    with. A track learned on other poses (its digest differs) is ignored.
     """
     from pghm.subject import Subject
 

@@ -55,7 +55,7 @@ from pghm.train.optim import LazyAdam
 from pghm.train.person_crop import CROP_MARGIN
 from pghm.train.pose_refine import refine_poses
 from pghm.subject import ALL_SPLIT
-from pghm.train.pose_track import frames_of, learned_track, track_corrections
+from pghm.train.pose_track import frame_numbers, learned_track, track_corrections
 from pghm.train.run_setup import GeometryCache, checkpoint_path, config_record, lpips_for
 
 log = logging.getLogger(__name__)
@@ -242,14 +242,14 @@ def settle(
     corrections: PoseCorrections,
     config: FitConfig,
     steps: int,
-    coarse_steps: int,
+    fine_steps: int,
     what: str,
     images: list[int] | None = None,
 ) -> None:
     """The fit's settling pass: ``corrections``' rows of the frames of ``data`` (or of its
-    ``images``) refined against their images for ``steps`` steps, the first ``coarse_steps`` coarse,
-    ``avatar`` frozen (:func:`pghm.train.pose_refine.refine_poses`: the fit's loss on the dynamic
-    render, the rate of poses as noisy as the synthetic data's, a batch of frames per core)."""
+    ``images``) refined against their images for ``steps`` steps, all but the last ``fine_steps``
+    coarse, ``avatar`` frozen (:func:`pghm.train.pose_refine.refine_poses`: the fit's loss on the
+    dynamic render, the rate of poses as noisy as the synthetic data's, a batch of frames per core)."""
     refine_poses(
         avatar,
         data,
@@ -262,7 +262,7 @@ def settle(
         progress=config.stage2.progress,
         desc=f"fit: {what}",
         hold_appearance=config.hold_appearance,
-        coarse_steps=coarse_steps,
+        coarse_steps=max(steps - fine_steps, 0),
         dynamic_only=True,
         workers=torch.get_num_threads(),
     )
@@ -280,16 +280,17 @@ def align_held_out(avatar: Avatar, subject_dir: str | Path, config: FitConfig, s
     reports them, since their poses have seen their images.
     """
     data = TrainingData(subject_dir, split=ALL_SPLIT, crop_margin=config.crop_margin)
-    trained = set(avatar.pose_track.frames.tolist())
-    frame_of = data.subjects[0].arrays.frame_index
-    held = [int(i) for i in data.images[0] if int(i if frame_of is None else frame_of[i]) not in trained]
-    if not held or not steps:
+    images = np.asarray(data.images[0], dtype=np.int64)
+    frames = frame_numbers(data, images)
+    held = ~np.isin(frames, avatar.pose_track.frames.numpy())
+    if not held.any() or not steps:
         return avatar.pose_track
     corrections, _ = track_corrections(avatar.pose_track, data, load_body(data.body_name, config.body_model_path))
     corrections = corrections.to(avatar.device)
-    settle(avatar, data, corrections, config, steps, max(steps - config.track_fine_steps, 0), "align held-out poses", held)
-    aligned = np.setdiff1d(frames_of(data), avatar.pose_track.frames.numpy())
-    return replace(learned_track(corrections, data), aligned=torch.as_tensor(aligned, dtype=torch.int64))
+    held_images = images[held].tolist()
+    settle(avatar, data, corrections, config, steps, config.track_fine_steps, "align held-out poses", held_images)
+    aligned = torch.as_tensor(np.unique(frames[held]), dtype=torch.int64)
+    return replace(learned_track(corrections, data), aligned=aligned)
 
 
 def initial_latent(model: PGHM) -> torch.Tensor:
@@ -410,9 +411,9 @@ def fit(
     if start_stage == 1 and corrections is not None and config.early_track_steps:
         started = time.perf_counter()
         with profile.phase("early settling"):
-            stage1 = Avatar(model=model, kind="avatar", body_name=data.body_name, shape=data.shape(0), latent=latent.detach())
+            stage1 = Avatar(model, "avatar", data.body_name, data.shape(0), latent=latent.detach())
             steps = config.early_track_steps
-            settle(stage1, data, corrections, config, steps, steps, "settle poses on the stage-1 avatar")
+            settle(stage1, data, corrections, config, steps, 0, "settle poses on the stage-1 avatar")
         model.train()
         corrections.requires_grad_(True)
         early_seconds = round(time.perf_counter() - started, 1)
@@ -473,14 +474,14 @@ def fit(
         if config.track_steps:
             started = time.perf_counter()
             with profile.phase("pose settling"):
-                coarse = max(config.track_steps - config.track_fine_steps, 0)
-                settle(avatar, data, corrections, config, config.track_steps, coarse, "settle poses")
+                settle(avatar, data, corrections, config, config.track_steps, config.track_fine_steps, "settle poses")
             avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
         avatar.pose_track = move(learned_track(corrections, data), torch.device("cpu"))  # a record, as in the file
         if config.held_out_steps:
             started = time.perf_counter()
             with profile.phase("held-out poses"):
-                avatar.pose_track = move(align_held_out(avatar, subject_dir, config, config.held_out_steps), torch.device("cpu"))
+                track = align_held_out(avatar, subject_dir, config, config.held_out_steps)
+                avatar.pose_track = move(track, torch.device("cpu"))
             avatar.metadata["held_out_seconds"] = round(time.perf_counter() - started, 1)
             avatar.metadata["held_out_frames"] = len(avatar.pose_track.aligned)
     if config.detail.steps:

@@ -175,7 +175,7 @@ class AvatarObjective(nn.Module):
         )
         both = [torch.cat([getattr(g, f) for g in sets]) for f in ("means", "scales", "colors", "opacities")]
         with profile.part(profile.GUARD):
-            finite = all(bool(torch.isfinite(t.detach()).all()) for t in both)
+            finite = all_finite(both)
         if not finite:
             # A diverged network: hand the loop a non-finite loss that still has a graph (the
             # guard then skips the step and lowers the rate) rather than non-finite Gaussians,
@@ -381,7 +381,8 @@ def check_trained(states: list[LoopState], out: Path) -> None:
         raise PghmError(f"{out}: not written: {reason}")
 
 
-def _all_finite(tensors) -> bool:
+def all_finite(tensors) -> bool:
+    """Whether every value of every tensor in ``tensors`` is finite (the guard's check)."""
     return all(bool(torch.isfinite(t).all()) for t in tensors)
 
 
@@ -460,13 +461,13 @@ def run_stage(
                     terms_sum[key] = terms_sum.get(key, 0.0) + value
             with profile.part(profile.GUARD):
                 backup = [p.detach().clone() for p in trainable]
-                finite = math.isfinite(total) and _all_finite(p.grad for p in trainable if p.grad is not None)
+                finite = math.isfinite(total) and all_finite(p.grad for p in trainable if p.grad is not None)
             if finite:
                 with profile.part(profile.OPTIMISER):
                     torch.nn.utils.clip_grad_norm_(trainable, config.max_grad_norm)
                     optimizer.step()
                 with profile.part(profile.GUARD):
-                    if not _all_finite(trainable):
+                    if not all_finite(trainable):
                         with torch.no_grad():
                             for p, saved in zip(trainable, backup):
                                 p.copy_(saved)

@@ -33,6 +33,7 @@ import logging
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -47,10 +48,11 @@ from pghm.train import profile
 from pghm.train.background import TRAINING_BACKGROUND, draw_backgrounds
 from pghm.splat import Camera
 from pghm.train.data import PoseCorrections, Sample, TrainingData
-from pghm.train.loop import AvatarObjective
+from pghm.train.loop import AvatarObjective, all_finite
 from pghm.train.losses import LossWeights
 from pghm.train.optim import LazyAdam
 from pghm.train.person_crop import Crop
+from pghm.train.pose_track import frame_numbers
 
 log = logging.getLogger(__name__)
 
@@ -133,8 +135,7 @@ def _halves(samples: list[Sample]) -> bool:
 def _one_view_per_frame(data: TrainingData, images: list[int]) -> bool:
     """Whether no two of ``images`` show one frame (a monocular video): then no two batches refine
     one row, and batches can be refined in any order, side by side."""
-    frames = data.subjects[0].arrays.frame_index
-    return frames is None or len(set(frames[images].tolist())) == len(images)
+    return len(np.unique(frame_numbers(data, images))) == len(images)
 
 
 def refine_poses(
@@ -279,7 +280,7 @@ class _Settling:
                 loss.backward()
             self.bar.update(1)
             with profile.part(profile.GUARD):
-                finite = all(bool(torch.isfinite(p.grad).all()) for p in parameters)
+                finite = all_finite(p.grad for p in parameters)
             if not finite:
                 log.warning(
                     "pose refinement, images %s, step %d: non-finite gradient; step skipped",

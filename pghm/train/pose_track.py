@@ -29,17 +29,22 @@ from pghm.io.avatar import MAX_BRACKET_STEPS, PoseTrack
 from pghm.train.data import PoseCorrections, TrainingData
 
 
-def frames_of(data: TrainingData) -> np.ndarray:
+def frame_numbers(data: TrainingData, images) -> np.ndarray:
+    """(N,) the frame number of each of ``images`` (N image indices of the data's single subject):
+    its ``frame_index``, or the image index itself when the subject records none."""
+    frames = data.subjects[0].arrays.frame_index
+    images = np.asarray(images, dtype=np.int64)
+    return frames[images] if frames is not None else images
+
+
+def _frames_of(data: TrainingData) -> np.ndarray:
     """(F,) distinct frame numbers of the data's (single subject's) images, ascending."""
-    subject = data.subjects[0]
-    images = data.images[0]
-    frames = subject.arrays.frame_index
-    return np.unique(frames[images] if frames is not None else images)
+    return np.unique(frame_numbers(data, data.images[0]))
 
 
 def learned_track(corrections: PoseCorrections, data: TrainingData) -> PoseTrack:
     """The pose track of a fit: ``corrections``' rows of the frames ``data`` (one subject) trains on."""
-    frames = frames_of(data)
+    frames = _frames_of(data)
     rows = torch.as_tensor(frames + data.frame_offsets[0])
     return PoseTrack(
         frames=torch.as_tensor(frames, dtype=torch.int64),
@@ -68,7 +73,7 @@ def track_corrections(track: PoseTrack, data: TrainingData, body: BodyModel) -> 
     corrections = data.pose_corrections(body)
     if not torch.equal(track.bones, corrections.bones):
         raise PghmError(f"the avatar's pose track corrects other bones than {data.body_name}'s estimated joints")
-    frames = frames_of(data)
+    frames = _frames_of(data)
     aligned = subject.aligned_frames()
     rotations, translation, found, exact = track.at(frames, MAX_BRACKET_STEPS * subject.arrays.frame_step(), aligned)
     rows = torch.as_tensor(frames[found] + data.frame_offsets[0])

@@ -6,11 +6,12 @@ pair, the innermost one open, so the parts of the table sum to the total by cons
     total = sum over phases p, parts q of  t(p, q)
 
 Phases are the fit's stretches (setup, stage 1, early settling, stage 2, pose settling, held-out
-poses, save); parts are what a step does (:data:`PARTS`). The backward pass is one call into autograd; hooks on the renders and
-on the Gaussians it splats (:func:`mark_backward`) switch the part as the gradient crosses them,
-splitting it into the losses', the splatter's and the network's backward. CPU time is the whole
-process's (every intra-op thread, spinning included), so CPU / wall above 1 is threads at work
-or waiting actively. When no profile is active every hook is a no-op costing one global lookup.
+poses, save); parts are what a step does (:data:`PARTS`). The backward pass is one call into
+autograd; hooks on the renders and on the Gaussians it splats (:func:`mark_backward`) switch the
+part as the gradient crosses them, splitting it into the losses', the splatter's and the network's
+backward. CPU time is the whole process's (every intra-op thread, spinning included), so CPU / wall
+above 1 is threads at work or waiting actively. When no profile is active every hook is a no-op
+costing one global lookup.
 """
 
 from __future__ import annotations
