@@ -1,8 +1,9 @@
 """Where a captured subject's held-out error comes from: ``pghm eval``'s squared error split by region.
 
 For an avatar and its subject, the held-out frames are rendered as ``pghm eval --refine-poses N``
-renders them (the same refinement, on white against the stored image) and each pixel's squared
-error (mean over RGB) is given to one region, in this order of precedence:
+renders them (the same refinement, on white against the stored image; ``--fit-poses``: with the
+avatar's pose track, as ``pghm eval --fit-poses``) and each pixel's squared error (mean over RGB)
+is given to one region, in this order of precedence:
 
     ball      a held object: the strongly orange pixels of the truth inside its mask (a basketball),
               grown to the disc around them, within ``BAND`` px of the mask (``--ball``);
@@ -20,7 +21,16 @@ region's error split three ways: the render against the stored truth (what eval 
 render against the ideal truth (the avatar's own error), and the stored truth against the ideal
 truth (the capture's: its mask and the video's compression).
 
-    python benchmarks/bench_error_budget.py AVATAR SUBJECT [--ball] [--turning-seed 0] [--steps 30]
+Then what the outline costs, against the stored matte a (the truth's coverage):
+
+    profile   per signed distance d to the matte's outline (px, rounded; negative inside): the
+              pixels, the render's mean alpha and the matte's, and the share of the error;
+    coverage  the PSNR of the avatar's own colours c = C / A composited through the matte
+              (c a + 1 - a) and of the stored colours through the avatar's alpha: how much of
+              the error is where the avatar covers, and how much what colour it has there;
+    height    the share of the error in each tenth of the person's height (head to feet).
+
+    python benchmarks/bench_error_budget.py AVATAR SUBJECT [--ball] [--turning-seed 0] [--steps 30 | --fit-poses]
                                            [--band 2 4] [--results NAME]
 """
 
@@ -29,6 +39,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -37,12 +48,14 @@ import torch
 from common import print_table, setup_threads, write_json
 
 from pghm.capture.matte import outline_distance
+from pghm.body import load_body
 from pghm.io.avatar import load_avatar
 from pghm.train import pose_refine
 from pghm.train.background import WHITE
 from pghm.train.data import TrainingData
 from pghm.train.evaluate import on_background, render_images
 from pghm.train.fit import POSE_LR, FitConfig
+from pghm.train.pose_track import track_corrections
 
 BALL_HUE = (3.0, 22.0)
 """Hue range (degrees) of a basketball's orange-brown."""
@@ -51,6 +64,43 @@ BALL_SATURATION = 0.5
 BALL_MIN_PIXELS = 200
 """Fewest orange pixels that make a ball (fewer: a glove's or a hand's fleck)."""
 REGIONS = ("ball", "band", "interior", "exterior")
+PROFILE_PX = 6
+"""The outline profile's reach on either side (px)."""
+COVERED = 0.05
+"""Matte alpha above which a stored pixel's own colour is known (C / a)."""
+HEIGHT_BINS = 10
+"""The height table's bins: tenths of the person's height in the image."""
+SWAPS = ("as rendered", "avatar colours, matte's coverage", "stored colours, avatar's coverage")
+"""The composites :func:`coverage_swaps` scores."""
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """One held-out frame as eval renders it, (H, W[, 3]) float64 arrays in [0, 1].
+
+    Attributes:
+        index: the image's index in the subject.
+        truth: the stored image (the person on white through the matte).
+        render: the avatar on white.
+        rgb: the avatar on black (premultiplied colour C).
+        alpha: the avatar's coverage A.
+        matte: the stored matte a.
+    """
+
+    index: int
+    truth: np.ndarray
+    render: np.ndarray
+    rgb: np.ndarray
+    alpha: np.ndarray
+    matte: np.ndarray
+
+    @property
+    def mask(self) -> np.ndarray:
+        return self.matte > 0.5
+
+    @property
+    def error(self) -> np.ndarray:
+        return ((self.render - self.truth) ** 2).mean(-1)
 
 
 def ball_disc(image: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -104,28 +154,84 @@ def budget(errors: list[np.ndarray], regions: list[dict[str, np.ndarray]]) -> li
     return rows
 
 
-def refined_frames(avatar_path: Path, subject: Path, steps: int):
-    """[(image index, truth (H, W, 3) float, render (H, W, 3) float, mask (H, W) bool)] of the test
-    split, rendered as ``pghm eval --refine-poses steps`` renders them on white."""
+def held_out_frames(avatar_path: Path, subject: Path, steps: int, fit_poses: bool = False) -> list[HeldOut]:
+    """The test split rendered on white as ``pghm eval --refine-poses steps`` renders it, or with
+    ``fit_poses`` as ``pghm eval --fit-poses`` does."""
     avatar = load_avatar(avatar_path)
     data = TrainingData(subject, split="test")
     indices = [int(i) for i in data.images[0]]
     corrections = None
-    if steps > 0:
+    if fit_poses:
+        corrections, _ = track_corrections(avatar.pose_track, data, load_body(avatar.body_name))
+    elif steps > 0:
         loss = FitConfig().stage2.loss
         corrections = pose_refine.refine_poses(avatar, data, steps, loss, POSE_LR, images=indices)
     frames = []
     for sample, rgb_on_black, alpha in render_images(avatar, data, indices, corrections=corrections):
         target, image = on_background(sample, rgb_on_black, alpha, WHITE)
         frames.append(
-            (
-                sample.image_index,
-                target.permute(1, 2, 0).numpy().astype(np.float64),
-                image.permute(1, 2, 0).numpy().astype(np.float64),
-                sample.mask[0].numpy() > 0.5,
+            HeldOut(
+                index=sample.image_index,
+                truth=target.permute(1, 2, 0).numpy().astype(np.float64),
+                render=image.permute(1, 2, 0).numpy().astype(np.float64),
+                rgb=rgb_on_black.permute(1, 2, 0).numpy().astype(np.float64),
+                alpha=alpha.reshape(image.shape[-2:]).numpy().astype(np.float64),
+                matte=sample.mask[0].numpy().astype(np.float64),
             )
         )
     return frames
+
+
+def outline_profile(frames: list[HeldOut], reach: int = PROFILE_PX) -> list[dict]:
+    """Per signed distance d in [-reach, reach] to the matte's outline (rounded px, negative inside;
+    0 never occurs): pixels, the render's and the matte's mean alpha, and the share of the error."""
+    sums: dict[int, np.ndarray] = {d: np.zeros(4) for d in range(-reach, reach + 1) if d}
+    total = sum(float(f.error.sum()) for f in frames)
+    for f in frames:
+        distance = np.rint(np.where(f.mask, -outline_distance(f.mask), outline_distance(f.mask))).astype(int)
+        for d, row in sums.items():
+            at = distance == d
+            row += (at.sum(), f.alpha[at].sum(), f.matte[at].sum(), f.error[at].sum())
+    return [
+        {
+            "distance px": d,
+            "pixels": int(n),
+            "render alpha": a / n if n else math.nan,
+            "matte alpha": m / n if n else math.nan,
+            "error %": 100 * e / total if total else 0.0,
+        }
+        for d, (n, a, m, e) in sums.items()
+    ]
+
+
+def coverage_swaps(frames: list[HeldOut]) -> dict[str, float]:
+    """Mean PSNR of the render as it is, of the avatar's colours through the matte, and of the stored
+    colours through the avatar's alpha (where the matte covers less than :data:`COVERED`, or the
+    avatar covers nothing, the other side's colour stands in)."""
+    psnr: dict[str, list[float]] = {name: [] for name in SWAPS}
+    for f in frames:
+        a, alpha = f.matte[..., None], f.alpha[..., None]
+        stored = (f.truth - (1 - a)) / np.maximum(a, COVERED)
+        own = np.where(alpha > 0, f.rgb / np.where(alpha > 0, alpha, 1.0), stored)
+        stored = np.where(a > COVERED, stored, own)
+        composites = (f.render, own * a + 1 - a, stored * alpha + 1 - alpha)
+        for name, image in zip(SWAPS, composites):
+            psnr[name].append(psnr_of(float(((np.clip(image, 0, 1) - f.truth) ** 2).mean())))
+    return {name: float(np.mean(values)) for name, values in psnr.items()}
+
+
+def height_shares(frames: list[HeldOut], bins: int = HEIGHT_BINS) -> list[float]:
+    """% of the error in each of ``bins`` rows of the person's height in the image (from the matte),
+    top to bottom; rows above and below the person count to the first and last."""
+    shares = np.zeros(bins)
+    for f in frames:
+        rows = np.flatnonzero(f.mask.any(1))
+        if not len(rows):
+            continue
+        top, bottom = rows[0], rows[-1] + 1
+        band = np.clip((np.arange(f.mask.shape[0]) - top) * bins // (bottom - top), 0, bins - 1)
+        np.add.at(shares, band, f.error.sum(1))
+    return (100 * shares / shares.sum()).tolist() if shares.sum() else shares.tolist()
 
 
 def true_views(subject: Path, indices: list[int], seed: int) -> dict[int, tuple[np.ndarray, np.ndarray]]:
@@ -178,6 +284,7 @@ def main() -> None:
     parser.add_argument("avatar", type=Path)
     parser.add_argument("subject", type=Path)
     parser.add_argument("--steps", type=int, default=30, help="test-time pose refinement steps (pghm eval's)")
+    parser.add_argument("--fit-poses", action="store_true", help="the avatar's pose track instead of refinement")
     parser.add_argument("--band", type=float, nargs="+", default=[2.0, 4.0], help="band half-widths (px)")
     parser.add_argument("--ball", action="store_true", help="count a held orange ball as its own region")
     parser.add_argument("--turning-seed", type=int, default=None, help="the subject is bench_real's turning video")
@@ -185,29 +292,36 @@ def main() -> None:
     args = parser.parse_args()
     setup_threads()
     torch.manual_seed(0)
-    frames = refined_frames(args.avatar, args.subject, args.steps)
+    frames = held_out_frames(args.avatar, args.subject, args.steps, args.fit_poses)
     truth = None
     if args.turning_seed is not None:
-        truth = true_views(args.subject, [f[0] for f in frames], args.turning_seed)
-    payload = {"avatar": args.avatar.name, "subject": args.subject.name, "steps": args.steps, "bands": {}}
+        truth = true_views(args.subject, [f.index for f in frames], args.turning_seed)
+    poses = "fit" if args.fit_poses else f"refined {args.steps}"
+    payload = {"avatar": args.avatar.name, "subject": args.subject.name, "poses": poses, "bands": {}}
     for band in args.band:
-        regions = [
-            region_maps(mask, band, ball_disc((t * 255).round().astype(np.uint8), mask) if args.ball else None)
-            for _, t, _, mask in frames
-        ]
-        tables = {"eval (render - stored truth)": [((r - t) ** 2).mean(-1) for _, t, r, _ in frames]}
+        balls = [ball_disc((f.truth * 255).round().astype(np.uint8), f.mask) if args.ball else None for f in frames]
+        regions = [region_maps(f.mask, band, ball) for f, ball in zip(frames, balls)]
+        tables = {"eval (render - stored truth)": [f.error for f in frames]}
         if truth is not None:
-            tables["avatar (render - ideal truth)"] = [((r - truth[i][0]) ** 2).mean(-1) for i, _, r, _ in frames]
-            tables["capture (stored - ideal truth)"] = [((t - truth[i][0]) ** 2).mean(-1) for i, t, _, _ in frames]
+            tables["avatar (render - ideal truth)"] = [((f.render - truth[f.index][0]) ** 2).mean(-1) for f in frames]
+            tables["capture (stored - ideal truth)"] = [((f.truth - truth[f.index][0]) ** 2).mean(-1) for f in frames]
         payload["bands"][band] = {}
         for name, errors in tables.items():
             print(f"\nband {band:g} px, {name}")
             rows = budget(errors, regions)
             print_table(rows)
             payload["bands"][band][name] = rows
+    payload["profile"] = outline_profile(frames)
+    print("\nby signed distance to the matte's outline (negative inside)")
+    print_table(payload["profile"])
+    payload["coverage"] = coverage_swaps(frames)
+    print("\nPSNR with the coverage or the colours swapped for the stored ones")
+    print_table([{"composite": name, "PSNR": value} for name, value in payload["coverage"].items()])
+    payload["height %"] = height_shares(frames)
+    print(f"\nerror % by tenth of the person's height, head to feet: {np.round(payload['height %'], 1).tolist()}")
     if truth is not None:
-        true_masks = [truth[i][1] >= 0.5 for i, *_ in frames]
-        payload["masks"] = mask_agreement([m for *_, m in frames], true_masks)
+        true_masks = [truth[f.index][1] >= 0.5 for f in frames]
+        payload["masks"] = mask_agreement([f.mask for f in frames], true_masks)
         print(f"\ncaptured masks against the true alpha >= 0.5: {payload['masks']}")
     if args.results:
         write_json(args.results, payload)
