@@ -10,7 +10,9 @@ time and peak memory are its own:
    it (as on a laptop running something else);
 3. ``pghm eval AVATAR SUBJECT --split test`` with the stored poses, ``--fit-poses`` and
    ``--refine-poses 30``: PSNR, SSIM, silhouette IoU and halo on the held-out frames, and the
-   strip of the refined evaluation, copied to ``docs/bench_real_<video>.png``.
+   strip of the refined evaluation, copied to ``docs/bench_real_<video>.png``;
+4. what bounds the avatar (``bench_error_budget.coverage_swaps``, the fit's poses): the PSNR of its own
+   colours composited through the stored mattes, against the render's.
 
     python benchmarks/bench_real.py [VIDEO ...] [--turning 1] [--frames 100] [--busy]
                                     [--prior assets/prior.pt] [--fit-option=--stage2-steps=200 ...]
@@ -30,6 +32,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from bench_error_budget import coverage_swaps, held_out_frames
 from common import DOCS, ROOT, load_average, print_table, timed_child, write_json
 
 PGHM = [sys.executable, "-m", "pghm.cli.main"]
@@ -100,6 +103,7 @@ def bench_video(video: Path, name: str, work: Path, args: argparse.Namespace) ->
     if args.busy:
         row["fit_busy"] = run(fit(work / "avatar_busy.pt"), work / "fit_busy.log", busy=True)
     row["eval"] = evaluate(avatar, subject, work, name)
+    row["coverage"] = coverage_swaps(held_out_frames(avatar, subject, steps=0, fit_poses=True))
     return row
 
 
@@ -116,6 +120,7 @@ def table_rows(rows: list[dict]) -> list[dict]:
         for kind, figures in row["eval"].items():
             flat[f"psnr_{kind}"] = figures["psnr"]
             flat[f"ssim_{kind}"] = figures["ssim"]
+        flat["psnr_matte_coverage"] = round(row["coverage"]["avatar colours, matte's coverage"], 2)
         flat["iou"] = row["eval"]["refined"]["iou"]
         flat["halo"] = row["eval"]["refined"]["halo_pixels"]
         out.append(flat)
