@@ -11,8 +11,9 @@ time and peak memory are its own:
 3. ``pghm eval AVATAR SUBJECT --split test`` with the stored poses, ``--fit-poses`` and
    ``--refine-poses 30``: PSNR, SSIM, silhouette IoU and halo on the held-out frames, and the
    strip of the refined evaluation, copied to ``docs/bench_real_<video>.png``;
-4. what bounds the avatar (``bench_error_budget.coverage_swaps``, the fit's poses): the PSNR of its own
-   colours composited through the stored mattes, against the render's.
+4. what bounds the avatar (``bench_error_budget.coverage_swaps``, the fit's poses, or the stored
+   ones for an avatar fitted without a pose track): the PSNR of its own colours composited through
+   the stored mattes, against the render's.
 
     python benchmarks/bench_real.py [VIDEO ...] [--turning 1] [--frames 100] [--busy]
                                     [--prior assets/prior.pt] [--fit-option=--stage2-steps=200 ...]
@@ -34,6 +35,8 @@ from pathlib import Path
 
 from bench_error_budget import coverage_swaps, held_out_frames
 from common import DOCS, ROOT, load_average, print_table, timed_child, write_json
+
+from pghm.io.avatar import load_avatar
 
 PGHM = [sys.executable, "-m", "pghm.cli.main"]
 """The pghm command, run in a child process of this interpreter."""
@@ -103,7 +106,9 @@ def bench_video(video: Path, name: str, work: Path, args: argparse.Namespace) ->
     if args.busy:
         row["fit_busy"] = run(fit(work / "avatar_busy.pt"), work / "fit_busy.log", busy=True)
     row["eval"] = evaluate(avatar, subject, work, name)
-    row["coverage"] = coverage_swaps(held_out_frames(avatar, subject, steps=0, fit_poses=True))
+    fit_poses = load_avatar(avatar).pose_track is not None  # none with --fit-option=--no-pose-refinement
+    row["coverage"] = coverage_swaps(held_out_frames(avatar, subject, steps=0, fit_poses=fit_poses))
+    row["coverage"]["poses"] = "fit" if fit_poses else "stored"
     return row
 
 
