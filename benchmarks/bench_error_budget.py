@@ -47,8 +47,8 @@ import numpy as np
 import torch
 from common import print_table, setup_threads, write_json
 
-from pghm.capture.matte import outline_distance
 from pghm.body import load_body
+from pghm.capture.matte import outline_distance
 from pghm.io.avatar import load_avatar
 from pghm.train import pose_refine
 from pghm.train.background import WHITE
