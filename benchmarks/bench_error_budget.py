@@ -40,6 +40,7 @@ import argparse
 import json
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import cv2
@@ -49,7 +50,7 @@ from common import print_table, setup_threads, write_json
 
 from pghm.body import load_body
 from pghm.capture.matte import outline_distance
-from pghm.io.avatar import load_avatar
+from pghm.io.avatar import Avatar, load_avatar
 from pghm.train import pose_refine
 from pghm.train.background import WHITE
 from pghm.train.data import TrainingData
@@ -98,8 +99,9 @@ class HeldOut:
     def mask(self) -> np.ndarray:
         return self.matte > 0.5
 
-    @property
+    @cached_property
     def error(self) -> np.ndarray:
+        """(H, W) squared error, mean over RGB (what eval averages)."""
         return ((self.render - self.truth) ** 2).mean(-1)
 
 
@@ -154,10 +156,9 @@ def budget(errors: list[np.ndarray], regions: list[dict[str, np.ndarray]]) -> li
     return rows
 
 
-def held_out_frames(avatar_path: Path, subject: Path, steps: int, fit_poses: bool = False) -> list[HeldOut]:
+def held_out_frames(avatar: Avatar, subject: Path, steps: int, fit_poses: bool = False) -> list[HeldOut]:
     """The test split rendered on white as ``pghm eval --refine-poses steps`` renders it, or with
     ``fit_poses`` as ``pghm eval --fit-poses`` does."""
-    avatar = load_avatar(avatar_path)
     data = TrainingData(subject, split="test")
     indices = [int(i) for i in data.images[0]]
     corrections = None
@@ -185,13 +186,15 @@ def held_out_frames(avatar_path: Path, subject: Path, steps: int, fit_poses: boo
 def outline_profile(frames: list[HeldOut], reach: int = PROFILE_PX) -> list[dict]:
     """Per signed distance d in [-reach, reach] to the matte's outline (rounded px, negative inside;
     0 never occurs): pixels, the render's and the matte's mean alpha, and the share of the error."""
-    sums: dict[int, np.ndarray] = {d: np.zeros(4) for d in range(-reach, reach + 1) if d}
-    total = sum(float(f.error.sum()) for f in frames)
+    bins = 2 * reach + 1
+    sums = np.zeros((4, bins))  # pixels, render alpha, matte alpha, error
     for f in frames:
         distance = np.rint(np.where(f.mask, -outline_distance(f.mask), outline_distance(f.mask))).astype(int)
-        for d, row in sums.items():
-            at = distance == d
-            row += (at.sum(), f.alpha[at].sum(), f.matte[at].sum(), f.error[at].sum())
+        near = np.abs(distance) <= reach
+        index = distance[near] + reach
+        for row, weights in zip(sums, (None, f.alpha[near], f.matte[near], f.error[near])):
+            row += np.bincount(index, weights, minlength=bins)
+    total = sum(float(f.error.sum()) for f in frames)
     return [
         {
             "distance px": d,
@@ -200,7 +203,8 @@ def outline_profile(frames: list[HeldOut], reach: int = PROFILE_PX) -> list[dict
             "matte alpha": m / n if n else math.nan,
             "error %": 100 * e / total if total else 0.0,
         }
-        for d, (n, a, m, e) in sums.items()
+        for d, (n, a, m, e) in zip(range(-reach, reach + 1), sums.T)
+        if d
     ]
 
 
@@ -292,7 +296,7 @@ def main() -> None:
     args = parser.parse_args()
     setup_threads()
     torch.manual_seed(0)
-    frames = held_out_frames(args.avatar, args.subject, args.steps, args.fit_poses)
+    frames = held_out_frames(load_avatar(args.avatar), args.subject, args.steps, args.fit_poses)
     truth = None
     if args.turning_seed is not None:
         truth = true_views(args.subject, [f.index for f in frames], args.turning_seed)

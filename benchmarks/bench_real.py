@@ -106,8 +106,9 @@ def bench_video(video: Path, name: str, work: Path, args: argparse.Namespace) ->
     if args.busy:
         row["fit_busy"] = run(fit(work / "avatar_busy.pt"), work / "fit_busy.log", busy=True)
     row["eval"] = evaluate(avatar, subject, work, name)
-    fit_poses = load_avatar(avatar).pose_track is not None  # none with --fit-option=--no-pose-refinement
-    row["coverage"] = coverage_swaps(held_out_frames(avatar, subject, steps=0, fit_poses=fit_poses))
+    fitted = load_avatar(avatar)
+    fit_poses = fitted.pose_track is not None  # none with --fit-option=--no-pose-refinement
+    row["coverage"] = coverage_swaps(held_out_frames(fitted, subject, steps=0, fit_poses=fit_poses))
     row["coverage"]["poses"] = "fit" if fit_poses else "stored"
     return row
 

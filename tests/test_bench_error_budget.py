@@ -5,6 +5,7 @@ where an error was put."""
 from __future__ import annotations
 
 import importlib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,8 +20,6 @@ EXACT_DB = 200.0
 
 @pytest.fixture
 def bench(monkeypatch):
-    from pathlib import Path
-
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parent.parent / "benchmarks"))
     return importlib.import_module("bench_error_budget")
 

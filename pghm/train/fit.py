@@ -209,31 +209,36 @@ def pose_learning_rate(rotation_sigma: float) -> float:
     return POSE_LR * min(1.0, ESTIMATOR_ROTATION_SIGMA / rotation_sigma)
 
 
+def stated_noisy(rotation_sigma: float) -> bool:
+    """Whether poses stated ``rotation_sigma`` radians noisy are noisier than the synthetic data's
+    (2 degrees): a capture's, whose fit settles and aligns its poses by default."""
+    return rotation_sigma > ESTIMATOR_ROTATION_SIGMA
+
+
 def track_steps(rotation_sigma: float, visits: float, early_steps: int) -> int:
     """The default steps that settle the pose track after stage 2: :data:`TRACK_STEPS` for poses
-    stated noisier than the synthetic data's (``rotation_sigma`` radians > 2 degrees: a capture's)
-    whose frames stage 2 visits fewer than :data:`TRACK_MIN_VISITS` times each (``visits``) and
-    that were not settled between the stages (``early_steps`` 0), else 0. A synthetic subject's
-    corrections are within stage 2's reach (the shipped avatar is unchanged), and so are those of a
-    short video; a track settled between the stages ends as well aligned without it
-    (docs/training.md, "The pose track")."""
+    stated noisier than the synthetic data's (:func:`stated_noisy`: a capture's) whose frames stage 2
+    visits fewer than :data:`TRACK_MIN_VISITS` times each (``visits``) and that were not settled
+    between the stages (``early_steps`` 0), else 0. A synthetic subject's corrections are within
+    stage 2's reach (the shipped avatar is unchanged), and so are those of a short video; a track
+    settled between the stages ends as well aligned without it (docs/training.md, "The pose track")."""
     if early_steps:
         return 0
-    return TRACK_STEPS if rotation_sigma > ESTIMATOR_ROTATION_SIGMA and visits < TRACK_MIN_VISITS else 0
+    return TRACK_STEPS if stated_noisy(rotation_sigma) and visits < TRACK_MIN_VISITS else 0
 
 
 def early_track_steps(rotation_sigma: float) -> int:
     """The default coarse steps that settle the training frames' poses between the stages:
     :data:`EARLY_TRACK_STEPS` for poses stated noisier than the synthetic data's (a capture's), else 0."""
-    return EARLY_TRACK_STEPS if rotation_sigma > ESTIMATOR_ROTATION_SIGMA else 0
+    return EARLY_TRACK_STEPS if stated_noisy(rotation_sigma) else 0
 
 
 def held_out_steps(rotation_sigma: float) -> int:
     """The default steps that align the held-out frames' poses: :data:`TRACK_STEPS` for poses stated
-    noisier than the synthetic data's (``rotation_sigma`` radians > 2 degrees: a capture's), else 0.
-    A capture's estimates are a few pixels off, which no interpolation of the training frames'
-    corrections fixes (their errors change from frame to frame); a synthetic subject's are not."""
-    return TRACK_STEPS if rotation_sigma > ESTIMATOR_ROTATION_SIGMA else 0
+    noisier than the synthetic data's (a capture's), else 0. A capture's estimates are a few pixels
+    off, which no interpolation of the training frames' corrections fixes (their errors change from
+    frame to frame); a synthetic subject's are not."""
+    return TRACK_STEPS if stated_noisy(rotation_sigma) else 0
 
 
 def settle(
