@@ -151,9 +151,11 @@ def main() -> None:
     bent = bent_frames(subject)
 
     def fit_config(stage1: int, stage2: int, seed: int = 0) -> FitConfig:
-        """The default fit (its loss weights included) with these budgets. A checkpoint at the end
-        of each stage lets a longer run of the same chain resume from it."""
+        """The default fit (its loss weights included) with these budgets, of the paper's model (no
+        detail layer). A checkpoint at the end of each stage lets a longer run of the same chain
+        resume from it."""
         defaults = FitConfig()
+        defaults.detail = replace(defaults.detail, steps=0)
 
         def stage(loop: LoopConfig, steps: int) -> LoopConfig:
             return replace(loop, steps=steps, images_per_shard=budget.fit_images, checkpoint_every=steps, seed=seed)

@@ -1,9 +1,10 @@
 """Where a captured subject's held-out error comes from: ``pghm eval``'s squared error split by region.
 
-For an avatar and its subject, the held-out frames are rendered as ``pghm eval --refine-poses N``
-renders them (the same refinement, on white against the stored image; ``--fit-poses``: with the
-avatar's pose track, as ``pghm eval --fit-poses``) and each pixel's squared error (mean over RGB)
-is given to one region, in this order of precedence:
+For an avatar and its subject, the held-out frames (``--split train``: the training frames, which
+tell what the avatar cannot draw from what it fails to generalise) are rendered as ``pghm eval
+--refine-poses N`` renders them (the same refinement, on white against the stored image;
+``--fit-poses``: with the avatar's pose track, as ``pghm eval --fit-poses``) and each pixel's
+squared error (mean over RGB) is given to one region, in this order of precedence:
 
     ball      a held object: the strongly orange pixels of the truth inside its mask (a basketball),
               grown to the disc around them, within ``BAND`` px of the mask (``--ball``);
@@ -30,8 +31,8 @@ Then what the outline costs, against the stored matte a (the truth's coverage):
               the error is where the avatar covers, and how much what colour it has there;
     height    the share of the error in each tenth of the person's height (head to feet).
 
-    python benchmarks/bench_error_budget.py AVATAR SUBJECT [--ball] [--turning-seed 0] [--steps 30 | --fit-poses]
-                                           [--band 2 4] [--results NAME]
+    python benchmarks/bench_error_budget.py AVATAR SUBJECT [--split train] [--ball] [--turning-seed 0]
+                                           [--steps 30 | --fit-poses] [--band 2 4] [--results NAME]
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ from pghm.io.avatar import Avatar, load_avatar
 from pghm.train import pose_refine
 from pghm.train.background import WHITE
 from pghm.train.data import TrainingData
-from pghm.train.evaluate import on_background, render_images
+from pghm.train.frames import on_background, render_images
 from pghm.train.fit import POSE_LR, FitConfig
 from pghm.train.pose_track import track_corrections
 
@@ -76,8 +77,8 @@ SWAPS = ("as rendered", "avatar colours, matte's coverage", "stored colours, ava
 
 
 @dataclass(frozen=True)
-class HeldOut:
-    """One held-out frame as eval renders it, (H, W[, 3]) float64 arrays in [0, 1].
+class ScoredFrame:
+    """One frame as eval renders it, (H, W[, 3]) float64 arrays in [0, 1].
 
     Attributes:
         index: the image's index in the subject.
@@ -156,10 +157,12 @@ def budget(errors: list[np.ndarray], regions: list[dict[str, np.ndarray]]) -> li
     return rows
 
 
-def held_out_frames(avatar: Avatar, subject: Path, steps: int, fit_poses: bool = False) -> list[HeldOut]:
-    """The test split rendered on white as ``pghm eval --refine-poses steps`` renders it, or with
-    ``fit_poses`` as ``pghm eval --fit-poses`` does."""
-    data = TrainingData(subject, split="test")
+def scored_frames(
+    avatar: Avatar, subject: Path, steps: int, fit_poses: bool = False, split: str = "test"
+) -> list[ScoredFrame]:
+    """The ``split``'s frames rendered on white as ``pghm eval --split split --refine-poses steps``
+    renders them, or with ``fit_poses`` as ``pghm eval --fit-poses`` does."""
+    data = TrainingData(subject, split=split)
     indices = [int(i) for i in data.images[0]]
     corrections = None
     if fit_poses:
@@ -171,7 +174,7 @@ def held_out_frames(avatar: Avatar, subject: Path, steps: int, fit_poses: bool =
     for sample, rgb_on_black, alpha in render_images(avatar, data, indices, corrections=corrections):
         target, image = on_background(sample, rgb_on_black, alpha, WHITE)
         frames.append(
-            HeldOut(
+            ScoredFrame(
                 index=sample.image_index,
                 truth=target.permute(1, 2, 0).numpy().astype(np.float64),
                 render=image.permute(1, 2, 0).numpy().astype(np.float64),
@@ -183,7 +186,7 @@ def held_out_frames(avatar: Avatar, subject: Path, steps: int, fit_poses: bool =
     return frames
 
 
-def outline_profile(frames: list[HeldOut], reach: int = PROFILE_PX) -> list[dict]:
+def outline_profile(frames: list[ScoredFrame], reach: int = PROFILE_PX) -> list[dict]:
     """Per signed distance d in [-reach, reach] to the matte's outline (rounded px, negative inside;
     0 never occurs): pixels, the render's and the matte's mean alpha, and the share of the error."""
     bins = 2 * reach + 1
@@ -208,7 +211,7 @@ def outline_profile(frames: list[HeldOut], reach: int = PROFILE_PX) -> list[dict
     ]
 
 
-def coverage_swaps(frames: list[HeldOut]) -> dict[str, float]:
+def coverage_swaps(frames: list[ScoredFrame]) -> dict[str, float]:
     """Mean PSNR of the render as it is, of the avatar's colours through the matte, and of the stored
     colours through the avatar's alpha (where the matte covers less than :data:`COVERED`, or the
     avatar covers nothing, the other side's colour stands in)."""
@@ -224,7 +227,7 @@ def coverage_swaps(frames: list[HeldOut]) -> dict[str, float]:
     return {name: float(np.mean(values)) for name, values in psnr.items()}
 
 
-def height_shares(frames: list[HeldOut], bins: int = HEIGHT_BINS) -> list[float]:
+def height_shares(frames: list[ScoredFrame], bins: int = HEIGHT_BINS) -> list[float]:
     """% of the error in each of ``bins`` rows of the person's height in the image (from the matte),
     top to bottom; rows above and below the person count to the first and last."""
     shares = np.zeros(bins)
@@ -289,6 +292,7 @@ def main() -> None:
     parser.add_argument("subject", type=Path)
     parser.add_argument("--steps", type=int, default=30, help="test-time pose refinement steps (pghm eval's)")
     parser.add_argument("--fit-poses", action="store_true", help="the avatar's pose track instead of refinement")
+    parser.add_argument("--split", default="test", help="the subject's split to score (default test)")
     parser.add_argument("--band", type=float, nargs="+", default=[2.0, 4.0], help="band half-widths (px)")
     parser.add_argument("--ball", action="store_true", help="count a held orange ball as its own region")
     parser.add_argument("--turning-seed", type=int, default=None, help="the subject is bench_real's turning video")
@@ -296,12 +300,13 @@ def main() -> None:
     args = parser.parse_args()
     setup_threads()
     torch.manual_seed(0)
-    frames = held_out_frames(load_avatar(args.avatar), args.subject, args.steps, args.fit_poses)
+    frames = scored_frames(load_avatar(args.avatar), args.subject, args.steps, args.fit_poses, args.split)
     truth = None
     if args.turning_seed is not None:
         truth = true_views(args.subject, [f.index for f in frames], args.turning_seed)
     poses = "fit" if args.fit_poses else f"refined {args.steps}"
-    payload = {"avatar": args.avatar.name, "subject": args.subject.name, "poses": poses, "bands": {}}
+    payload = {"avatar": args.avatar.name, "subject": args.subject.name, "split": args.split, "poses": poses}
+    payload["bands"] = {}
     for band in args.band:
         balls = [ball_disc((f.truth * 255).round().astype(np.uint8), f.mask) if args.ball else None for f in frames]
         regions = [region_maps(f.mask, band, ball) for f, ball in zip(frames, balls)]

@@ -135,8 +135,10 @@ def splat_rows(device: torch.device, sizes, repeats: int) -> list[dict]:
 
 
 def stage2_only(resolution: int, steps: int) -> FitConfig:
-    """The default fit at L = ``resolution`` with no stage 1 and ``steps`` stage-2 steps, no checkpoints."""
+    """The default fit at L = ``resolution`` with no stage 1, ``steps`` stage-2 steps and no detail
+    stage, no checkpoints."""
     config = FitConfig(uv_resolution=resolution, track_steps=0, lpips=False)
+    config.detail = dataclasses.replace(config.detail, steps=0)
     config.stage1 = dataclasses.replace(config.stage1, steps=0, checkpoint_every=0, progress=False)
     config.stage2 = dataclasses.replace(config.stage2, steps=steps, checkpoint_every=0, progress=False)
     return config

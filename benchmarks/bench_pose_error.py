@@ -50,7 +50,7 @@ from pghm.io.avatar import Avatar, load_avatar
 from pghm.synth.poses import add_pose_noise
 from pghm.train import pose_refine
 from pghm.train.data import PoseCorrections, TrainingData
-from pghm.train.evaluate import on_background, render_images
+from pghm.train.frames import on_background, render_images
 from pghm.train.fit import POSE_LR, FitConfig
 from pghm.train.losses import psnr
 from pghm.train.pose_track import track_corrections

@@ -33,7 +33,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from bench_error_budget import coverage_swaps, held_out_frames
+from bench_error_budget import coverage_swaps, scored_frames
 from common import DOCS, ROOT, load_average, print_table, timed_child, write_json
 
 from pghm.io.avatar import load_avatar
@@ -108,7 +108,7 @@ def bench_video(video: Path, name: str, work: Path, args: argparse.Namespace) ->
     row["eval"] = evaluate(avatar, subject, work, name)
     fitted = load_avatar(avatar)
     fit_poses = fitted.pose_track is not None  # none with --fit-option=--no-pose-refinement
-    row["coverage"] = coverage_swaps(held_out_frames(fitted, subject, steps=0, fit_poses=fit_poses))
+    row["coverage"] = coverage_swaps(scored_frames(fitted, subject, steps=0, fit_poses=fit_poses))
     row["coverage"]["poses"] = "fit" if fit_poses else "stored"
     return row
 

@@ -44,9 +44,10 @@ SPLIT = "test_novel_pose"
 
 
 def budget(steps: int, resolution: int) -> FitConfig:
-    """The default fit configuration at UV side ``resolution`` with ``steps`` in all, split
-    between the stages as the default."""
+    """The default fit configuration of the paper's model (no detail layer) at UV side ``resolution``
+    with ``steps`` in all, split between the stages as the default."""
     config = FitConfig(uv_resolution=resolution)
+    config.detail = dataclasses.replace(config.detail, steps=0)
     first = steps // STAGE1_SHARE
     config.stage1 = dataclasses.replace(config.stage1, steps=first, checkpoint_every=0)
     config.stage2 = dataclasses.replace(config.stage2, steps=steps - first, checkpoint_every=0)

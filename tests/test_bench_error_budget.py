@@ -28,7 +28,7 @@ def frame(bench, matte: np.ndarray, alpha: np.ndarray, colour: np.ndarray):
     """A held-out frame whose stored image is ``colour`` through ``matte`` and whose render is the
     same colours through ``alpha``, both on white."""
     a, alpha3 = matte[..., None], alpha[..., None]
-    return bench.HeldOut(
+    return bench.ScoredFrame(
         index=0,
         truth=colour * a + 1 - a,
         render=colour * alpha3 + 1 - alpha3,
@@ -85,7 +85,7 @@ def test_height_shares_put_an_error_in_its_tenth(bench):
     render = f.render.copy()
     render[21, 3] = 0.5
     render[1, 20] = 0.5
-    shares = bench.height_shares([bench.HeldOut(0, f.truth, render, f.rgb, f.alpha, f.matte)])
+    shares = bench.height_shares([bench.ScoredFrame(0, f.truth, render, f.rgb, f.alpha, f.matte)])
     assert len(shares) == bench.HEIGHT_BINS
     assert shares[8] == pytest.approx(50.0) and shares[0] == pytest.approx(50.0)
     assert sum(shares) == pytest.approx(100.0)

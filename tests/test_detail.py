@@ -191,7 +191,7 @@ def test_a_layer_in_a_version_1_file_or_a_prior_is_refused(avatar, tmp_path):
 
 def test_driver_export_and_eval_use_the_layer(avatar, pose, body, tmp_path, tiny_dataset):
     from pghm.train.data import TrainingData
-    from pghm.train.evaluate import render_images
+    from pghm.train.frames import render_images
 
     maps = random_maps(SMALL)
     maps[:, 1:4] = 30.0  # colour logits far up: every Gaussian white, whatever the network says

@@ -29,7 +29,7 @@ from pghm.train import evaluate as evaluate_module
 from pghm.train import fit as fit_module
 from pghm.train import loop as loop_module
 from pghm.train import run_setup
-from pghm.train.evaluate import on_background
+from pghm.train.frames import on_background
 from pghm.train.fit import FitConfig, fit
 from pghm.train.loop import LoopConfig
 from pghm.train.losses import TargetSsim, image_losses, psnr, silhouette
@@ -98,7 +98,7 @@ def avatar_files(tiny_dataset, prior_files, tmp_path_factory, patches) -> dict[s
     frame's alignment and the detail stage, a checkpoint after every step, profiled."""
     folder = tmp_path_factory.mktemp("avatars")
     stages = ["--stage1-steps", "1", "--stage2-steps", "1", "--track-steps", "1", "--detail-steps", "1"]
-    stages += ["--early-track-steps", "1", "--held-out-steps", "1"]
+    stages += ["--detail-validation", "0", "--early-track-steps", "1", "--held-out-steps", "1"]
     options = [*stages, "--checkpoint-every", "1"]
     for device in ("cpu", "cuda"):
         out = folder / f"{device}.pt"

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -124,7 +125,8 @@ def test_fit_detail_stage_trains_only_the_layer_and_saves_it(tiny_dataset, prior
     from pghm.io.avatar import avatar_geometry, load_avatar
 
     stages = [LoopConfig(steps=n, images_per_shard=2, checkpoint_every=0) for n in (1, 1, 3)]
-    config = FitConfig(stage1=stages[0], stage2=stages[1], lpips=False)
+    config = FitConfig(stage1=stages[0], stage2=stages[1], lpips=False, detail_validation=0)
+    config.detail = replace(stages[2], steps=0)
     plain = fit(tiny_dataset / "subject_001", load_avatar(prior_file), tmp_path / "plain.pt", config)
     config.detail = stages[2]
     fit(tiny_dataset / "subject_001", load_avatar(prior_file), tmp_path / "detail.pt", config)
@@ -443,3 +445,72 @@ def test_learning_rate_ten_times_too_high_leaves_no_nan(tiny_dataset, tmp_path, 
     avatar = train_prior(tiny_dataset, tmp_path / "hot.pt", config)
     for name, value in avatar.model.state_dict().items():
         assert torch.isfinite(value).all(), name
+
+
+def test_validation_images_are_the_middle_of_each_run_of_training_images():
+    from pghm.train.detail import validation_images
+
+    assert validation_images(list(range(10, 20)), 4) == [12, 16]
+    assert validation_images([3, 5, 8], 1) == [3, 5, 8] and validation_images([3, 5, 8], 0) == []
+
+
+def test_detail_squared_error_is_evals_mean_squared_error_summed(tiny_dataset, prior_file, tmp_path):
+    from pghm.io.avatar import load_avatar
+    from pghm.train.detail import squared_error
+    from pghm.train.evaluate import evaluate
+
+    subject = tiny_dataset / "subject_001"
+    stages = [LoopConfig(steps=1, images_per_shard=2, checkpoint_every=0) for _ in range(2)]
+    config = FitConfig(stage1=stages[0], stage2=stages[1], lpips=False)
+    avatar = fit(subject, load_avatar(prior_file), tmp_path / "a.pt", config)
+    data = TrainingData(subject, split="train")  # whole frames, stored poses: what eval renders
+    images = [int(i) for i in data.images[0]]
+    result = evaluate(avatar, subject, split="train", images=images)
+    pixels = 3 * 64 * 64
+    expected = sum(pixels * 10 ** (-p / 10) for p in result.psnr)
+    assert squared_error(avatar, data, images, None) == pytest.approx(expected, rel=1e-4)  # eval sums in float32
+
+
+@pytest.mark.parametrize("damage", [False, True])
+def test_fit_keeps_a_detail_layer_only_when_it_draws_the_held_frames_closer(
+    tiny_dataset, prior_file, tmp_path, monkeypatch, damage
+):
+    import pghm.train.fit as fit_module
+    from pghm.io.avatar import load_avatar
+
+    trained_on = []
+
+    def train_detail(model, latent, corrections, data, *args):
+        trained_on.extend(int(i) for i in data.images[0])
+        detailed, state = real_train_detail(model, latent, corrections, data, *args)
+        if damage:  # colour logits pushed far off: every held frame drawn worse
+            detailed.detail.maps.data[:, 1:4] += 5.0
+        return detailed, state
+
+    real_train_detail = fit_module.train_detail
+    monkeypatch.setattr(fit_module, "train_detail", train_detail)
+    monkeypatch.setattr(fit_module, "MIN_VALIDATION_IMAGES", 1)
+    stages = [LoopConfig(steps=n, images_per_shard=2, checkpoint_every=0) for n in (1, 1, 3)]
+    config = FitConfig(stage1=stages[0], stage2=stages[1], detail=stages[2], detail_validation=2, lpips=False)
+    subject = tiny_dataset / "subject_001"
+    fit(subject, load_avatar(prior_file), tmp_path / "a.pt", config)
+    avatar = load_avatar(tmp_path / "a.pt")
+    record = avatar.metadata["detail"]
+    train = [int(i) for i in TrainingData(subject).images[0]]
+    assert sorted(trained_on) == train[0::2] and record["validation_images"] == len(train[1::2])
+    assert record["kept"] == (record["error_with"] < record["error_without"])
+    assert (avatar.model.detail is not None) == record["kept"] and avatar.metadata["steps"]["detail"] == 3
+    if damage:
+        assert not record["kept"] and record["error_with"] > 2 * record["error_without"]
+
+
+def test_fit_trains_no_detail_layer_on_too_few_frames_to_validate_it(tiny_dataset, prior_file, tmp_path):
+    from pghm.io.avatar import load_avatar
+    from pghm.train.detail import MIN_VALIDATION_IMAGES, VALIDATION_EVERY
+
+    stages = [LoopConfig(steps=1, images_per_shard=2, checkpoint_every=0) for _ in range(2)]
+    fit(tiny_dataset / "subject_001", load_avatar(prior_file), tmp_path / "a.pt", FitConfig(*stages, lpips=False))
+    avatar = load_avatar(tmp_path / "a.pt")
+    assert len(TrainingData(tiny_dataset / "subject_001").images[0]) < MIN_VALIDATION_IMAGES * VALIDATION_EVERY
+    assert avatar.model.detail is None and "detail" not in avatar.metadata["steps"]
+    assert avatar.metadata["detail"]["kept"] is False and "too few" in avatar.metadata["detail"]["why"]

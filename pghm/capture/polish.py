@@ -66,10 +66,11 @@ def polish_poses(
     ``prior``: the prior to personalise (a file, a loaded prior, or a :class:`ModelConfig` to start
     from scratch, for tests); ``config``: the fit's settings (default: ``pghm fit``'s), whose split
     and pose settings (corrections of the stored poses, no settling of the training frames) the
-    polish sets; ``progress``: the fit's and the settling's bars on stderr.
+    polish sets, with no detail stage; ``progress``: the fit's and the settling's bars on stderr.
     """
     subject_dir = Path(subject_dir)
     config = replace(config or FitConfig(), split=ALL_SPLIT, track_steps=0, refine_poses=True, pose_smoothing=0.0)
+    config.detail = replace(config.detail, steps=0)  # the avatar aligns poses and is discarded
     if not progress:
         config = replace(
             config, stage1=replace(config.stage1, progress=False), stage2=replace(config.stage2, progress=False)

@@ -190,6 +190,15 @@ def register(subparsers) -> None:
         "0: none (default %(default)s)",
     )
     fit.add_argument(
+        "--detail-validation",
+        type=STEPS,
+        default=fit_defaults.detail_validation,
+        metavar="EVERY",
+        help="hold every EVERY-th training frame out of the detail stage and keep the layer only if it draws "
+        "those frames closer than the avatar without it; 0: train it on every frame and keep it "
+        "(default %(default)s)",
+    )
+    fit.add_argument(
         "--profile",
         default=None,
         metavar="JSON",
@@ -307,6 +316,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         held_out_steps=args.held_out_steps,
         uv_resolution=args.uv_resolution,
         detail=replace(stages[1], steps=args.detail_steps),
+        detail_validation=args.detail_validation,
         lpips=not args.no_lpips,
         body_model_path=args.body_model_path,
     )

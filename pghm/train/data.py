@@ -10,6 +10,7 @@ over processes then equals the single-process mean over all groups.
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 import os
@@ -265,6 +266,15 @@ class TrainingData:
         for start, end, (r, t) in zip(self.frame_offsets, ends, self.pose_noise):
             rotation[start:end], translation[start:end] = r, t
         return rotation, translation
+
+    def restricted(self, images: list[int]) -> TrainingData:
+        """This data set of one subject training on ``images`` (its image indices) only: the same
+        poses, crops and pose-correction rows, fewer images."""
+        if len(self.subjects) != 1:
+            raise PghmError(f"restricting training images needs one subject, found {len(self.subjects)}")
+        kept = copy.copy(self)
+        kept.images = [np.asarray(images, dtype=np.int64)]
+        return kept
 
     def pose_corrections(self, body: BodyModel) -> PoseCorrections:
         """Zero corrections of the estimated joints of every frame, their prior as wide as each

@@ -10,23 +10,58 @@ A step costs a forward pass of the U-Net (in its faster inference layout) and a 
 times the Gaussians, and no backward pass through the network: the residuals are leaves right
 before the activations. Each residual is seen only by the pixels its Gaussian covers, so the
 stage learns what the U-Net's smooth maps and the L texels cannot hold (print, seams, folds).
+
+Whether a video gains from the layer depends on how well its frames agree with each other: it
+sharpens a static camera's slow turn and blurs nothing, but on a hand-held video whose outline
+moves a pixel from frame to frame it draws sharp edges in the wrong place. So the fit validates it
+(:func:`validation_images`): every k-th training frame is held out of this stage, and the layer is
+kept only when it draws those frames closer than the avatar without it, by the summed squared error
+on white in the frames' corrected poses (:func:`squared_error`). The held frames were seen by the
+avatar's earlier stages and not by the layer, which favours the avatar without it: the layer is
+kept only when its gain outweighs that.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import torch
 from torch import Tensor, nn
 
+from pghm.io.avatar import Avatar
 from pghm.model.pghm import PGHM
+from pghm.train.background import WHITE
 from pghm.train.data import PoseCorrections, TrainingData
+from pghm.train.frames import on_background, render_images
 from pghm.train.loop import AvatarObjective, LoopConfig, LoopState, run_stage
 from pghm.train.run_setup import GeometryCache
 
 DETAIL_LR = 1e-2
 """Default Adam learning rate of the residuals (colour logits, and the lift before tanh): a texel's
 colour logit moves by about this much per step that sees it."""
+DETAIL_STEPS = 150
+"""Default steps of the detail stage: 300 do no better (docs/training.md, "Detail layer")."""
+VALIDATION_EVERY = 4
+"""Every this-many training frames, one is held out of the detail stage to validate it."""
+MIN_VALIDATION_IMAGES = 4
+"""Fewest held-out frames that validate a layer; a video with fewer gets none (nothing to decide on)."""
+
+
+def validation_images(images: Sequence[int], every: int) -> list[int]:
+    """The middle image of each run of ``every`` consecutive training ``images``: the frames that
+    validate the detail layer, spread over the whole video. Empty for ``every`` 0."""
+    return [int(i) for i in images[every // 2 :: every]] if every else []
+
+
+def squared_error(avatar: Avatar, data: TrainingData, images: list[int], corrections: PoseCorrections | None) -> float:
+    """The summed squared error of ``avatar``'s renders on white against ``images`` of ``data``, each
+    in its pose through ``corrections``: on the crops when ``data`` crops (outside them both are white)."""
+    total = 0.0
+    for sample, rgb_on_black, alpha in render_images(avatar, data, images, corrections=corrections):
+        target, image = on_background(sample, rgb_on_black, alpha, WHITE)
+        total += float((image.double() - target.double()).square().sum())
+    return total
 
 
 def train_detail(

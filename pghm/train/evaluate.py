@@ -29,16 +29,14 @@ from PIL import Image
 from torch import Tensor
 
 from pghm.body import load_body
-from pghm.body.pose import BodyPose
 from pghm.device import move
 from pghm.errors import PghmError
 from pghm.io.atomic import atomic_write_bytes
-from pghm.io.avatar import Avatar, avatar_geometry, load_avatar, recorded_path
-from pghm.model.evaluator import CachedEvaluator
-from pghm.splat import render
+from pghm.io.avatar import Avatar, load_avatar, recorded_path
 from pghm.train import pose_refine
-from pghm.train.background import BLACK, WHITE, composite_render, composite_target
-from pghm.train.data import PoseCorrections, Sample, TrainingData
+from pghm.train.background import WHITE
+from pghm.train.data import TrainingData
+from pghm.train.frames import on_background, render_images
 from pghm.train.fit import POSE_LR, FitConfig
 from pghm.train.losses import psnr, ssim
 from pghm.train.lpips import load_lpips, lpips_status
@@ -101,42 +99,6 @@ def heat_map(error: np.ndarray) -> np.ndarray:
     from matplotlib import colormaps
 
     return (colormaps["inferno"](np.clip(error / ERROR_SCALE, 0, 1))[..., :3] * 255).astype(np.uint8)
-
-
-def render_images(
-    avatar: Avatar,
-    data: TrainingData,
-    indices: list[int],
-    body_model_path: str | None = None,
-    corrections: PoseCorrections | None = None,
-):
-    """Yield (sample, render on black (3, H, W), alpha (H, W)) of the dynamic Gaussians, one image
-    at a time; each sample's pose through ``corrections`` (on the avatar's device) when given.
-    The model renders on the avatar's device; samples and images are on the CPU."""
-    device = avatar.device
-    evaluator = CachedEvaluator(avatar.model.eval(), avatar_geometry(avatar, body_model_path=body_model_path))
-    identity = avatar.identity_map()
-    for index in indices:
-        sample = data.load(0, index)
-        rotations, translation = move(sample.rotations[None], device), move(sample.translation[None], device)
-        if corrections is not None:
-            with torch.no_grad():
-                frame = torch.tensor([sample.frame_key], device=device)
-                rotations, translation = corrections(frame, rotations, translation)
-        pose = BodyPose(rotations, translation)
-        g = evaluator.evaluate(identity, pose, move(sample.camera.centre.float(), device)).dynamic
-        with torch.no_grad():
-            drawn = render(g.means[0], g.scales[0], g.colors[0], g.opacities[0], sample.camera, background=BLACK)
-        yield sample, drawn.rgb.permute(2, 0, 1).cpu(), drawn.alpha.cpu()
-
-
-def on_background(sample: Sample, rgb_on_black: Tensor, alpha: Tensor, background: tuple[float, float, float]):
-    """(target, render), each (3, H, W) in [0, 1], on ``background``: on white the stored image
-    (the paper's measure), elsewhere the image moved through its alpha matte."""
-    colour = torch.tensor(background, dtype=rgb_on_black.dtype, device=rgb_on_black.device).view(3, 1, 1)
-    image = composite_render(rgb_on_black, alpha[None], colour).clamp(0, 1)
-    target = sample.image if background == WHITE else composite_target(sample.image, sample.mask, colour)
-    return target, image
 
 
 def evaluate(

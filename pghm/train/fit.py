@@ -15,7 +15,8 @@ frame's correction refined against its image with the avatar frozen, coarse to f
 aligned to their own images the same way (:func:`align_held_out`), so every frame of the video
 replays aligned.
 Both stages train on crops around the person (:mod:`pghm.train.person_crop`).
-Last, when ``detail`` has steps, a detail layer trains on the frozen avatar (:mod:`pghm.train.detail`).
+Last, a detail layer trains on the frozen avatar and is kept if it draws the training frames held
+out of it closer than the avatar without it (:mod:`pghm.train.detail`).
 """
 
 from __future__ import annotations
@@ -38,7 +39,15 @@ from pghm.model.pghm import COMPONENTS
 from pghm.train import profile
 from pghm.train.background import TRAINING_BACKGROUND
 from pghm.train.data import ESTIMATOR_ROTATION_SIGMA, PoseCorrections, TrainingData
-from pghm.train.detail import DETAIL_LR, train_detail
+from pghm.train.detail import (
+    DETAIL_LR,
+    DETAIL_STEPS,
+    MIN_VALIDATION_IMAGES,
+    VALIDATION_EVERY,
+    squared_error,
+    train_detail,
+    validation_images,
+)
 from pghm.train.loop import (
     AvatarObjective,
     LoopConfig,
@@ -147,9 +156,13 @@ class FitConfig:
     """L of the avatar's UV maps; None: the prior's. Another L carries the prior's weights over
     (:meth:`PGHM.at_resolution`): (L / L_prior)^2 times as many Gaussians, finer detail, longer
     fits and slower viewing (docs/training.md, "Resolution, steps and image size")."""
-    detail: LoopConfig = field(default_factory=lambda: _fit_stage(0))
+    detail: LoopConfig = field(default_factory=lambda: _fit_stage(DETAIL_STEPS))
     """The detail stage (:mod:`pghm.train.detail`); 0 steps: no detail layer, the paper's model
     (docs/training.md, "Detail layer")."""
+    detail_validation: int = VALIDATION_EVERY
+    """Every this-many training frames, one is held out of the detail stage, and the layer is kept
+    only if it draws those frames closer than the avatar without it (:mod:`pghm.train.detail`);
+    0: the layer is trained on every frame and kept."""
     detail_lr: float = DETAIL_LR
     """Adam learning rate of the detail layer's residuals."""
     split: str = "train"
@@ -298,6 +311,55 @@ def align_held_out(avatar: Avatar, subject_dir: str | Path, config: FitConfig, s
     return replace(learned_track(corrections, data), aligned=aligned)
 
 
+def add_detail(
+    avatar: Avatar,
+    data: TrainingData,
+    corrections: PoseCorrections | None,
+    config: FitConfig,
+    lpips: nn.Module | None,
+    checkpoint: Path,
+) -> None:
+    """Train a detail layer on the finished ``avatar`` and give it to the avatar if it validates
+    (:mod:`pghm.train.detail`); the decision and its figures go to the avatar's metadata."""
+    images = [int(i) for i in data.images[0]]
+    held = validation_images(images, config.detail_validation)
+    if config.detail_validation and len(held) < MIN_VALIDATION_IMAGES:
+        why = f"{len(images)} training images: too few to validate a layer"
+        avatar.metadata["detail"] = {"kept": False, "why": why}
+        log.info("fit: no detail layer: %d training images are too few to validate one", len(images))
+        return
+    trained_on = data.restricted(sorted(set(images) - set(held))) if held else data
+    model, state = train_detail(
+        avatar.model,
+        avatar.latent,
+        corrections,
+        trained_on,
+        config.detail,
+        config.detail_lr,
+        lpips,
+        checkpoint,
+        config.body_model_path,
+    )
+    avatar.metadata["steps"]["detail"] = state.step
+    record = {"kept": True, "seconds": round(state.seconds, 1)}
+    if held:
+        detailed = replace(avatar, model=model)
+        without, with_layer = (squared_error(a, data, held, corrections) for a in (avatar, detailed))
+        record.update(validation_images=len(held), error_without=without, error_with=with_layer)
+        record["kept"] = with_layer < without
+        verdict = "kept" if record["kept"] else "dropped"
+        log.info(
+            "fit: detail layer %s: squared error of %d held frames %.1f with it, %.1f without",
+            verdict,
+            len(held),
+            with_layer,
+            without,
+        )
+    if record["kept"]:
+        avatar.model = model
+    avatar.metadata["detail"] = record
+
+
 def initial_latent(model: PGHM) -> torch.Tensor:
     """(1, C, L, L) on the model's device: the decoded mean of the bank's latents (a fresh latent
     for an empty bank)."""
@@ -343,8 +405,9 @@ def fit(
     for name in ("track_steps", "early_track_steps", "held_out_steps"):
         if getattr(config, name) is not None and getattr(config, name) < 0:
             raise PghmError(f"{name} must be >= 0, got {getattr(config, name)}")
-    if config.track_fine_steps < 0:
-        raise PghmError(f"track_fine_steps must be >= 0, got {config.track_fine_steps}")
+    for name in ("track_fine_steps", "detail_validation"):
+        if getattr(config, name) < 0:
+            raise PghmError(f"{name} must be >= 0, got {getattr(config, name)}")
     for name in ("latent_lr", "network_lr", "pose_lr", "detail_lr"):
         if getattr(config, name) is not None:
             check_learning_rate(name, getattr(config, name))
@@ -491,19 +554,7 @@ def fit(
             avatar.metadata["held_out_frames"] = len(avatar.pose_track.aligned)
     if config.detail.steps:
         with profile.phase("detail"):
-            avatar.model, detail = train_detail(
-                model,
-                avatar.latent,
-                corrections,
-                data,
-                config.detail,
-                config.detail_lr,
-                lpips,
-                ckpt,
-                config.body_model_path,
-            )
-        avatar.metadata["steps"]["detail"] = detail.step
-        avatar.metadata["detail_seconds"] = round(detail.seconds, 1)
+            add_detail(avatar, data, corrections, config, lpips, ckpt)
     with profile.phase("save"):
         save_avatar(out, avatar)
     ckpt.unlink(missing_ok=True)  # the avatar holds the result; a stale checkpoint would only mislead --resume
