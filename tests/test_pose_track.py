@@ -150,6 +150,7 @@ def test_the_pose_learning_rate_and_the_track_settling_follow_the_stated_noise(s
     from pghm.train.data import ESTIMATOR_ROTATION_SIGMA
     from pghm.train.fit import (
         EARLY_TRACK_STEPS,
+        HELD_OUT_STEPS,
         POSE_LR,
         TRACK_MIN_VISITS,
         TRACK_STEPS,
@@ -165,7 +166,7 @@ def test_the_pose_learning_rate_and_the_track_settling_follow_the_stated_noise(s
     assert track_steps(math.radians(9.5), 1.0, EARLY_TRACK_STEPS) == 0  # settled between the stages
     assert early_track_steps(ESTIMATOR_ROTATION_SIGMA) == held_out_steps(ESTIMATOR_ROTATION_SIGMA) == 0
     assert early_track_steps(math.radians(9.5)) == EARLY_TRACK_STEPS
-    assert held_out_steps(math.radians(9.5)) == TRACK_STEPS
+    assert held_out_steps(math.radians(9.5)) == HELD_OUT_STEPS
     assert pose_learning_rate(ESTIMATOR_ROTATION_SIGMA / 4) == POSE_LR
     assert pose_learning_rate(math.radians(8.0)) == pytest.approx(POSE_LR / 4)
     meta = json.loads((subject / "meta.json").read_text())

@@ -26,7 +26,7 @@ from pghm.io.outputs import PNG_SUFFIXES, check_output
 from pghm.model import ModelConfig
 from pghm.model.config import MAX_CHANNELS
 from pghm.train.background import BACKGROUND_KINDS, WHITE
-from pghm.train.fit import EARLY_TRACK_STEPS, TRACK_MIN_VISITS, TRACK_STEPS, FitConfig
+from pghm.train.fit import EARLY_TRACK_STEPS, HELD_OUT_STEPS, TRACK_MIN_VISITS, TRACK_STEPS, FitConfig
 from pghm.train.loop import MAX_LEARNING_RATE, LoopConfig
 from pghm.train.losses import LossWeights
 from pghm.train.prior import PriorConfig
@@ -171,7 +171,7 @@ def register(subparsers) -> None:
         type=STEPS,
         default=None,
         help="pose refinement steps per frame outside the training split once the avatar is finished, which align "
-        f"the held-out frames to their images (default: {TRACK_STEPS} for poses stated noisier than 2 degrees, "
+        f"the held-out frames to their images (default: {HELD_OUT_STEPS} for poses stated noisier than 2 degrees, "
         "as a capture's; else 0)",
     )
     fit.add_argument(

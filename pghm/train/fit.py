@@ -86,6 +86,12 @@ TRACK_STEPS = 30
 Adam's first steps move every coordinate by about the learning rate, whatever its gradient, so
 the poses settle only after a few tens (docs/lab/defaults.md, "Fit: settling the pose track")."""
 
+HELD_OUT_STEPS = 90
+"""Steps that align each held-out frame's pose to its image once the avatar is finished
+(:func:`held_out_steps`). A held-out frame starts from its neighbours' corrections, often pixels
+off its image, and at the capture's learning rate is still moving after 30 steps: 90 score the
+shared real video's held-out frames 0.7 dB higher for 10 s more (docs/lab/real-videos.md)."""
+
 TRACK_FINE_STEPS = 10
 """The last of a frame's settling steps, which run the network at full resolution; the others are
 coarse (:mod:`pghm.train.pose_refine`): half the resolution, the network's maps held, a third of the
@@ -247,11 +253,11 @@ def early_track_steps(rotation_sigma: float) -> int:
 
 
 def held_out_steps(rotation_sigma: float) -> int:
-    """The default steps that align the held-out frames' poses: :data:`TRACK_STEPS` for poses stated
+    """The default steps that align the held-out frames' poses: :data:`HELD_OUT_STEPS` for poses stated
     noisier than the synthetic data's (a capture's), else 0. A capture's estimates are a few pixels
     off, which no interpolation of the training frames' corrections fixes (their errors change from
     frame to frame); a synthetic subject's are not."""
-    return TRACK_STEPS if stated_noisy(rotation_sigma) else 0
+    return HELD_OUT_STEPS if stated_noisy(rotation_sigma) else 0
 
 
 def settle(
