@@ -354,7 +354,7 @@ def test_a_capture_fit_aligns_its_held_out_frames_and_eval_says_so(tiny_dataset,
     from pghm.body import load_body
     from pghm.io.avatar import load_avatar
     from pghm.train.evaluate import evaluate
-    from pghm.train.fit import TRACK_STEPS
+    from pghm.train.fit import HELD_OUT_STEPS
     from pghm.train.pose_track import track_corrections
 
     noise = {"rotation_std_deg": 9.5, "translation_std_m": 0.08}
@@ -368,7 +368,7 @@ def test_a_capture_fit_aligns_its_held_out_frames_and_eval_says_so(tiny_dataset,
         steps: fit(shifted, prior_file, tmp_path / f"{steps}.pt", FitConfig(*stages, lpips=False, held_out_steps=steps))
         for steps in (0, None)
     }
-    assert avatars[None].metadata["config"]["held_out_steps"] == TRACK_STEPS
+    assert avatars[None].metadata["config"]["held_out_steps"] == HELD_OUT_STEPS
     assert avatars[None].metadata["held_out_frames"] == 1 and "held_out_seconds" not in avatars[0].metadata
     assert torch.equal(avatars[0].latent, avatars[None].latent)
     weights = [avatar.model.state_dict() for avatar in avatars.values()]
