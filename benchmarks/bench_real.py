@@ -9,7 +9,7 @@ time and peak memory are its own:
    and peak GB on the machine as it is, and with ``--busy`` again with a CPU-bound busy loop beside
    it (as on a laptop running something else);
 3. ``pghm eval AVATAR SUBJECT --split test`` with the stored poses, ``--fit-poses`` and
-   ``--refine-poses 30``: PSNR, SSIM, silhouette IoU and halo on the held-out frames, and the
+   ``--refine-poses 90``: PSNR, SSIM, silhouette IoU and halo on the held-out frames, and the
    strip of the refined evaluation, copied to ``docs/bench_real_<video>.png``;
 4. what bounds the avatar (``bench_error_budget.coverage_swaps``, the fit's poses, or the stored
    ones for an avatar fitted without a pose track): the PSNR of its own colours composited through
@@ -40,8 +40,9 @@ from pghm.io.avatar import load_avatar
 
 PGHM = [sys.executable, "-m", "pghm.cli.main"]
 """The pghm command, run in a child process of this interpreter."""
-REFINE_STEPS = 30
-"""Test-time pose refinement steps of the refined evaluation (as evaluations of monocular avatars do)."""
+REFINE_STEPS = 90
+"""Test-time pose refinement steps of the refined evaluation (as evaluations of monocular avatars do;
+the alignment is still moving at 30 steps and has converged to within 0.1 dB by 90: docs/lab/real-videos.md)."""
 EVALUATIONS = {"stored": [], "fit": ["--fit-poses"], "refined": ["--refine-poses", str(REFINE_STEPS)]}
 """Name -> ``pghm eval`` options: the held-out frames' poses as captured, as the fit left them (a
 capture's fit aligns them to their images, the avatar frozen), refined from the captured ones."""
