@@ -9,6 +9,9 @@ starts as a user's would (thread policy included) and its table is the fit's own
 - ``--full``: the default fit, once, its whole table and wall time; with ``--busy`` beside a
   busy loop (``python -c "while True: pass"``, started :data:`BUSY_WARMUP_S` before, so the
   load average the fit starts under shows it);
+- ``--thread-cost``: whole default fits, ``--repeats`` of each of :data:`THREAD_COSTS` (idle; beside a
+  busy loop on one thread, the count the former load-sampling policy chose there, and on the
+  policy's one thread per core), interleaved: median wall and CPU seconds and their ratios;
 - ``--policies``: beside a busy loop, short fits under each thread setting of :data:`POLICIES`,
   interleaved ``--repeats`` times: median stage-2 seconds per step and its ratio to the first;
 - ``--held-check AVATAR``: the subject's held-out frames after :data:`TRACK_STEPS` steps of pose
@@ -19,7 +22,8 @@ starts as a user's would (thread policy included) and its table is the fit's own
   (``pghm eval --fit-poses``).
 
     python benchmarks/bench_fit_speed.py SUBJECT [SUBJECT ...] [--steps 5 10 2] [--repeats 3]
-                                         [--threads 1] [--full] [--busy] [--policies] [--label NAME]
+                                         [--threads 1] [--full] [--busy] [--policies] [--thread-cost]
+                                         [--label NAME]
                                          [--held-check AVATAR] [--settle-check AVATAR]
 
 Prints the tables and writes benchmarks/results/bench_fit_speed[_NAME].json. Every row records
@@ -49,7 +53,7 @@ PGHM = [sys.executable, "-m", "pghm.cli.main"]
 PRIOR = ROOT / "assets" / "prior.pt"
 BUSY_WARMUP_S = 60
 """Seconds the busy loop runs before a fit starts: the one-minute load average then reads about
-0.6 of it, above the thread policy's threshold of a busy core."""
+0.6 of it, so the load a row records shows the loop."""
 HELD_BATCH = 8
 """Frames refined together with the network's maps held: one evaluation of the maps serves them all."""
 POLICIES = {
@@ -60,6 +64,13 @@ POLICIES = {
 }
 """Thread settings compared beside a busy core. An empty OMP_WAIT_POLICY is libgomp's own
 default (spin a while, then sleep), which pghm replaces only when the variable is absent."""
+THREAD_COSTS = {
+    "idle, the policy": (False, {}),
+    "busy loop, 1 thread (the load policy's choice)": (True, {"OMP_NUM_THREADS": "1"}),
+    "busy loop, the policy": (True, {}),
+}
+"""Name -> (beside a busy loop, environment) of ``--thread-cost``. Idle, the former policy (threads
+from the cores' momentary load) chose what the affinity policy chooses, one thread per core."""
 SETTLINGS = {
     "none": {"steps": 0},
     "all live, both renders": {"steps": TRACK_STEPS},
@@ -164,6 +175,34 @@ def full(subject: Path, work: Path, busy: bool, threads: int | None) -> dict:
     run = (lambda: run_fit(subject, work / "full.pt", [], env))
     record = with_busy_loop(run) if busy else run()
     return {"subject": subject.name, "busy_loop": busy, **record}
+
+
+def thread_cost(subject: Path, work: Path, repeats: int) -> dict:
+    """Median wall and CPU seconds of whole default fits under each of :data:`THREAD_COSTS`, the
+    settings interleaved in each repeat; the busy settings share one busy loop."""
+    runs: dict[str, list[dict]] = {name: [] for name in THREAD_COSTS}
+    idle = [name for name, (busy, _) in THREAD_COSTS.items() if not busy]
+    busy = [name for name in THREAD_COSTS if name not in idle]
+
+    def sweep(names: list[str]) -> None:
+        for i in range(repeats):
+            for name in names:
+                runs[name].append(run_fit(subject, work / f"t{i}.pt", [], THREAD_COSTS[name][1]))
+
+    sweep(idle)
+    with_busy_loop(lambda: sweep(busy))
+    rows = [
+        {
+            "setting": name,
+            "threads": records[0]["threads"],
+            "wall_s": statistics.median(r["process_s"] for r in records),
+            "cpu_s": statistics.median(r["cpu_s"] for r in records),
+            "wall_s_each": [r["process_s"] for r in records],
+            "load": [r["load_before"] for r in records],
+        }
+        for name, records in runs.items()
+    ]
+    return {"subject": subject.name, "repeats": repeats, "rows": rows, "records": runs}
 
 
 def policies(subject: Path, work: Path, steps: list[int], repeats: int) -> dict:
@@ -287,6 +326,7 @@ def main() -> None:
     parser.add_argument("--full", action="store_true", help="the default fit, whole")
     parser.add_argument("--busy", action="store_true", help="with --full: beside a busy loop")
     parser.add_argument("--policies", action="store_true", help="thread settings beside a busy loop")
+    parser.add_argument("--thread-cost", action="store_true", help="whole default fits: idle, busy on 1 thread, busy")
     parser.add_argument("--label", default=None, help="results file suffix")
     parser.add_argument(
         "--held-check", type=Path, default=None, metavar="AVATAR",
@@ -297,7 +337,9 @@ def main() -> None:
         help="settle the track of AVATAR (fitted with --track-steps 0) in each way of SETTLINGS; score held-out frames",
     )
     args = parser.parse_args()
-    payload: dict = {"breakdown": [], "full": [], "policies": [], "held_check": [], "settle_check": []}
+    payload: dict = {
+        "breakdown": [], "full": [], "policies": [], "thread_cost": [], "held_check": [], "settle_check": []
+    }
     with tempfile.TemporaryDirectory() as temporary:
         work = Path(temporary)
         for subject in args.subjects:
@@ -311,6 +353,11 @@ def main() -> None:
                 print(f"\n{subject.name}: held-out frames after {TRACK_STEPS} refinement steps")
                 print_table(result["rows"])
                 payload["held_check"].append(result)
+            elif args.thread_cost:
+                result = thread_cost(subject, work, args.repeats)
+                print(f"\n{subject.name}: whole default fits, medians of {args.repeats}")
+                print_table([{k: v for k, v in row.items() if k != "wall_s_each"} for row in result["rows"]])
+                payload["thread_cost"].append(result)
             elif args.policies:
                 result = policies(subject, work, args.steps, args.repeats)
                 print(f"\n{subject.name}: stage 2 beside a busy loop")

@@ -3,15 +3,29 @@
 The suite runs as ``pytest -n 2`` (pytest-xdist: one worker per core of the 2-core target), so
 each worker takes one intra-op thread, and its OpenMP threads sleep rather than spin when they
 wait: two threads per worker would contend for the two cores, and a parallel region whose second
-thread is descheduled waits for it, tens of times slower on small tensors. OMP_NUM_THREADS, when
-set, wins (a verdict must not depend on the thread count: the suite is run with 1 and 2).
+thread is descheduled waits for it, tens of times slower on small tensors.
+
+The count is pinned through OMP_NUM_THREADS, which every ``pghm`` command honours
+(:mod:`pghm.cli.threads`), so the commands a test runs in its own process and those it starts as
+children compute on the same count. That is what lets a test compare two float computations of the
+same work bit for bit (a device stand-in against the CPU, a resumed fit against an uninterrupted one,
+the same command twice): torch adds a reduction's partial sums in an order set by the thread count,
+so only a difference in the code under test can make them differ. Comparisons between two different
+computations (GL against the CPU splatter, the C++ kernel against its torch twin, float32 against
+float64) carry tolerances derived where they are stated. A user's OMP_NUM_THREADS wins: the suite's
+verdicts must not depend on the count (it is run with 1 and 2).
 """
 
 from __future__ import annotations
 
 import os
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads its OpenMP runtime
+WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+CORES = 2
+"""The target machine's cores, shared by the workers."""
+# Both before torch loads its OpenMP runtime.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+os.environ.setdefault("OMP_NUM_THREADS", str(max(1, CORES // WORKERS)))
 
 from pathlib import PureWindowsPath  # noqa: E402
 
@@ -20,10 +34,7 @@ import torch  # noqa: E402
 
 from pghm.model import ModelConfig  # noqa: E402
 
-WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-CORES = 2
-"""The target machine's cores, shared by the workers."""
-torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS") or max(1, CORES // WORKERS)))
+torch.set_num_threads(int(os.environ["OMP_NUM_THREADS"]))
 
 
 @pytest.fixture(scope="session")

@@ -198,6 +198,7 @@ def evaluate(
             "poses": poses,
             "pose_refinement": {"steps": refine_poses, "seconds": round(refine_seconds, 1)},
             "mean": result.summary(),
+            "threads": torch.get_num_threads(),  # the last bits of every figure depend on it
             "lpips": lpips_status(directories=False),
             "halo": f"pixels outside the mask with mean RGB above {HALO_LEVEL} rendered on black",
             "per_image": [

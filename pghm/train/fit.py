@@ -531,6 +531,7 @@ def fit(
             "training_images": int(len(data.images[0])),
             "steps": {"stage1": state1.step, "stage2": state2.step},
             "seconds": round(state1.seconds + state2.seconds, 1),
+            "threads": torch.get_num_threads(),  # the last bits of every float depend on it
             "skipped_steps": state1.skipped_steps + state2.skipped_steps,
             "skipped_images": [list(b) for b in state2.bad_images],
             "lpips": lpips_line,

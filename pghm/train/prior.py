@@ -142,6 +142,7 @@ def train_prior(
             "training_images": int(sum(len(i) for i in data.images)),
             "steps": state.step,
             "seconds": round(state.seconds, 1),
+            "threads": torch.get_num_threads(),  # per process; the last bits of every float depend on it
             "skipped_steps": state.skipped_steps,
             "skipped_images": [list(b) for b in state.bad_images],
             "lpips": lpips_line,
