@@ -4,6 +4,7 @@ renders the same surface in the same colours, the avatar file, and every consume
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -214,3 +215,43 @@ def test_driver_export_and_eval_use_the_layer(avatar, pose, body, tmp_path, tiny
     for _, rgb_on_black, alpha in render_images(load_avatar(path), data, [int(data.images[0][0])]):
         assert alpha.max() > 0.9
         torch.testing.assert_close(rgb_on_black, alpha.expand_as(rgb_on_black), rtol=0, atol=1e-5)
+
+
+def _validate(errors: list[float], without: float, steps: int):
+    """A :class:`DetailValidation` fed ``errors`` (one per check, the first at step 0) for a stage of
+    ``steps``: the steps it validated at before it said stop, its record and itself."""
+    from pghm.train.detail import CHECK_EVERY, DetailValidation
+    from pghm.train.loop import LoopState
+
+    scripted = iter(errors)
+    model = SimpleNamespace(detail=SimpleNamespace(maps=torch.zeros(1)))
+    validation = DetailValidation(lambda _: next(scripted), without, 4)
+    checked = []
+    for step in range(0, steps + 1, CHECK_EVERY):
+        model.detail.maps = torch.full((1,), float(step))  # which step's layer the best one is
+        checked.append(step)
+        if validation(model, LoopState(step=step), steps) or step == steps:
+            break
+    return checked, validation.record(), validation
+
+
+def test_the_detail_stage_stops_when_the_layer_stops_paying_and_keeps_its_best():
+    """Falling below the avatar's error, then up: stop at the rise, keep the layer of the lowest error."""
+    checked, record, validation = _validate([120.0, 95.0, 90.0, 92.0, 80.0, 70.0], 100.0, 100)
+    assert checked == [0, 20, 40, 60] and record["kept"] and record["best_step"] == 40
+    assert record["error_with"] == 90.0 and float(validation.best[2]) == 40.0 and "stopped" in record
+
+
+def test_the_detail_stage_stops_early_when_the_layer_cannot_pay_in_time():
+    """Above the avatar's error and falling by 2 every 20 steps: 80 steps left cannot close a gap of
+    15, so the stage stops at the second check and the layer is dropped."""
+    checked, record, _ = _validate([119.0, 117.0, 115.0, 113.0], 100.0, 100)
+    assert checked == [0, 20] and not record["kept"] and "could not beat" in record["stopped"]
+
+
+def test_a_layer_that_keeps_paying_trains_all_its_steps():
+    """Falling at every check: no stop, and the last layer is the best."""
+    errors = [101.0, 99.0, 97.0, 95.0, 93.0, 91.0]
+    checked, record, _ = _validate(errors, 100.0, 100)
+    assert checked == [0, 20, 40, 60, 80, 100] and record["kept"] and record["best_step"] == 100
+    assert "stopped" not in record

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -475,20 +476,21 @@ def test_detail_squared_error_is_evals_mean_squared_error_summed(tiny_dataset, p
 def test_fit_keeps_a_detail_layer_only_when_it_draws_the_held_frames_closer(
     tiny_dataset, prior_file, tmp_path, monkeypatch, damage
 ):
+    import pghm.train.detail as detail_module
     import pghm.train.fit as fit_module
     from pghm.io.avatar import load_avatar
 
     trained_on = []
 
-    def train_detail(model, latent, corrections, data, *args):
-        trained_on.extend(int(i) for i in data.images[0])
-        detailed, state = real_train_detail(model, latent, corrections, data, *args)
+    def run_stage(**stage):
+        trained_on.extend(int(i) for i in stage["data"].images[0])
+        state = real_run_stage(**stage)
         if damage:  # colour logits pushed far off: every held frame drawn worse
-            detailed.detail.maps.data[:, 1:4] += 5.0
-        return detailed, state
+            stage["trainable"][0].data[:, 1:4] += 5.0
+        return state
 
-    real_train_detail = fit_module.train_detail
-    monkeypatch.setattr(fit_module, "train_detail", train_detail)
+    real_run_stage = detail_module.run_stage
+    monkeypatch.setattr(detail_module, "run_stage", run_stage)
     monkeypatch.setattr(fit_module, "MIN_VALIDATION_IMAGES", 1)
     stages = [LoopConfig(steps=n, images_per_shard=2, checkpoint_every=0) for n in (1, 1, 3)]
     config = FitConfig(stage1=stages[0], stage2=stages[1], detail=stages[2], detail_validation=2, lpips=False)
@@ -500,6 +502,7 @@ def test_fit_keeps_a_detail_layer_only_when_it_draws_the_held_frames_closer(
     assert sorted(trained_on) == train[0::2] and record["validation_images"] == len(train[1::2])
     assert record["kept"] == (record["error_with"] < record["error_without"])
     assert (avatar.model.detail is not None) == record["kept"] and avatar.metadata["steps"]["detail"] == 3
+    assert [step for step, _ in record["errors"]] == [0, 3]  # validated before the first step and at the end
     if damage:
         assert not record["kept"] and record["error_with"] > 2 * record["error_without"]
 
@@ -514,3 +517,24 @@ def test_fit_trains_no_detail_layer_on_too_few_frames_to_validate_it(tiny_datase
     assert len(TrainingData(tiny_dataset / "subject_001").images[0]) < MIN_VALIDATION_IMAGES * VALIDATION_EVERY
     assert avatar.model.detail is None and "detail" not in avatar.metadata["steps"]
     assert avatar.metadata["detail"]["kept"] is False and "too few" in avatar.metadata["detail"]["why"]
+
+
+def test_a_fit_with_a_budget_spends_it_and_records_its_plan(tiny_dataset, prior_file, tmp_path):
+    """``minutes``: the stages' steps scale to the time (from 3 + 6 given), every phase's record is
+    in the metadata, and the whole fit ends near the budget: a 12 s budget on steps of tens of ms
+    leaves the plan's last re-sizing a few steps off. The bounds (half to one and a half times) hold
+    on a machine shared with the other test worker, whose load the measured costs absorb."""
+    from pghm.io.avatar import load_avatar
+
+    stages = [LoopConfig(steps=n, images_per_shard=2, checkpoint_every=0, progress=False) for n in (3, 6)]
+    config = FitConfig(*stages, lpips=False, minutes=0.2, detail=replace(stages[1], steps=0))
+    started = time.perf_counter()
+    fit(tiny_dataset / "subject_001", load_avatar(prior_file), tmp_path / "a.pt", config)
+    seconds = time.perf_counter() - started
+    metadata = load_avatar(tmp_path / "a.pt").metadata
+    assert metadata["budget_seconds"] == 12.0 and 6.0 <= seconds <= 18.0, seconds
+    steps = metadata["steps"]
+    # Both scaled up; stage 1 is sized before stage 2's own cost is measured, so their ratio drifts.
+    assert steps["stage1"] > 3 and steps["stage2"] > 6
+    assert list(metadata["plan"]) == ["stage 1", "early settling", "stage 2", "pose settling", "held-out poses", "detail"]
+    assert metadata["plan"]["stage 2"]["steps"] == steps["stage2"] and metadata["plan"]["detail"]["steps"] == 0

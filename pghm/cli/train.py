@@ -43,6 +43,8 @@ where the mask term dominates the photometric ones."""
 MAX_POSE_SMOOTHING = 100.0
 """Largest --pose-smoothing sigma, in frames (the filter's support is a few sigma)."""
 LEARNING_RATE = Real(0.0, MAX_LEARNING_RATE, open_low=True)
+MAX_FIT_MINUTES = 10_000.0
+"""Largest --minutes: about a week, far past where more steps buy anything."""
 
 
 def _model_arguments(parser: argparse.ArgumentParser) -> None:
@@ -199,6 +201,13 @@ def register(subparsers) -> None:
         "(default %(default)s)",
     )
     fit.add_argument(
+        "--minutes",
+        type=Real(0.0, MAX_FIT_MINUTES, open_low=True),
+        default=None,
+        help="a wall-clock budget: the fit sizes its phases to N minutes on this machine as it runs (the stages' "
+        "steps scale from the ones given; the avatar then depends on the machine's speed); default: the fixed steps",
+    )
+    fit.add_argument(
         "--profile",
         default=None,
         metavar="JSON",
@@ -319,6 +328,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         detail_validation=args.detail_validation,
         lpips=not args.no_lpips,
         body_model_path=args.body_model_path,
+        minutes=args.minutes,
     )
     prior = ModelConfig() if args.prior == "scratch" else args.prior
     if args.profile is None:

@@ -19,11 +19,19 @@ kept only when it draws those frames closer than the avatar without it, by the s
 on white in the frames' corrected poses (:func:`squared_error`). The held frames were seen by the
 avatar's earlier stages and not by the layer, which favours the avatar without it: the layer is
 kept only when its gain outweighs that.
+
+The layer is validated as it trains, every :data:`CHECK_EVERY` steps (:func:`validated_detail`),
+and the stage stops as soon as the answer is known: when the held frames' error stops falling
+(the layer has stopped paying; the best layer so far is kept if it beats the avatar without one),
+or when it is still above the avatar's and, falling at its last rate for the steps left, would
+not get below it (the layer cannot pay in time; dropped). A video whose layer loses is then
+decided after a fraction of the stage's steps.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -35,6 +43,7 @@ from pghm.train.background import WHITE
 from pghm.train.data import PoseCorrections, TrainingData
 from pghm.train.frames import on_background, render_images
 from pghm.train.loop import AvatarObjective, LoopConfig, LoopState, run_stage
+from pghm.train.plan import Budget
 from pghm.train.run_setup import GeometryCache
 
 DETAIL_LR = 1e-2
@@ -47,6 +56,9 @@ VALIDATION_EVERY = 4
 """Every this-many training frames, one is held out of the detail stage to validate it."""
 MIN_VALIDATION_IMAGES = 4
 """Fewest held-out frames that validate a layer; a video with fewer gets none (nothing to decide on)."""
+CHECK_EVERY = 20
+"""Steps of the detail stage between validations of its layer (:func:`validated_detail`): a
+validation renders the held frames once (a few steps' time), five of them in the default 100 steps."""
 
 
 def validation_images(images: Sequence[int], every: int) -> list[int]:
@@ -75,12 +87,17 @@ def train_detail(
     lpips: nn.Module | None,
     checkpoint: Path,
     body_model_path: str | None = None,
+    validate=None,
+    budget: Budget | None = None,
 ) -> tuple[PGHM, LoopState]:
     """``model`` with a detail layer trained for ``config.steps`` steps on ``data`` (one subject), the
     personal ``latent`` (1, C, L, L), the network and the ``corrections`` frozen, on the latent's device;
     ``model`` is unchanged.
 
-    Returns the new model (in eval mode) and the stage's :class:`LoopState`.
+    ``validate``: called with the model, the stage's state and its planned steps every
+    :data:`CHECK_EVERY` steps (and before the first); training stops when it returns True.
+    ``budget``: the fit's plan, which may shorten the stage to the time left. Returns the new model
+    (in eval mode) and the stage's :class:`LoopState`.
     """
     detailed = model.with_detail().to(latent.device).eval()
     for p in detailed.parameters():
@@ -91,17 +108,104 @@ def train_detail(
     objective = AvatarObjective(detailed, latent.detach(), corrections, config.loss, lpips)
     geometries = GeometryCache(data, detailed.config, body_model_path, latent.device)
     optimizer = torch.optim.Adam([maps], lr=lr)
-    state = run_stage(
-        objective=objective,
-        trainable=[maps],
-        optimizer=optimizer,
-        data=data,
-        geometry_of=geometries,
-        config=config,
-        checkpoint=checkpoint,
-        state=LoopState(),
-        extra={"stage": 3},
-        description="fit: detail",
-    )
+    state, steps = LoopState(), config.steps
+    stop = validate is not None and validate(detailed, state, steps)
+    while state.step < steps and not stop:
+        end = min(state.step + CHECK_EVERY, steps) if validate is not None else steps
+        state = run_stage(
+            objective=objective,
+            trainable=[maps],
+            optimizer=optimizer,
+            data=data,
+            geometry_of=geometries,
+            config=replace(config, steps=end),
+            checkpoint=checkpoint,
+            state=state,
+            extra={"stage": 3},
+            description="fit: detail",
+        )
+        if budget is not None:
+            budget.progress(state.step)
+            steps = min(steps, budget.steps(state.step))
+        stop = validate is not None and validate(detailed, state, steps)
     maps.requires_grad_(False)
     return detailed, state
+
+
+class DetailValidation:
+    """The detail layer's validation as it trains (module doc): called every :data:`CHECK_EVERY`
+    steps with the model, it scores the held frames (``score``: their squared error drawn by a
+    model), keeps the best layer so far, and says when to stop. ``without``: the held frames'
+    squared error without a layer; ``images``: how many they are."""
+
+    def __init__(self, score: Callable[[PGHM], float], without: float, images: int) -> None:
+        self.score, self.without, self.images = score, without, images
+        self.errors: list[tuple[int, float]] = []
+        self.best: tuple[float, int, Tensor] | None = None
+        self.why = ""
+
+    def __call__(self, model: PGHM, state: LoopState, steps: int) -> bool:
+        error = self.score(model)
+        self.errors.append((state.step, error))
+        if state.step and (self.best is None or error < self.best[0]):  # a trained layer, not the zero one
+            self.best = (error, state.step, model.detail.maps.detach().clone())
+        if len(self.errors) < 2:
+            return False
+        (before_step, before), left = self.errors[-2], steps - state.step
+        if error >= before:
+            self.why = f"the held frames' error stopped falling at step {state.step}"
+            return True
+        rate = (before - error) / max(state.step - before_step, 1)
+        if error > self.without and error - rate * left > self.without:
+            self.why = f"at step {state.step} the layer could not beat the avatar without one in the steps left"
+            return True
+        return False
+
+    def record(self) -> dict:
+        """What the avatar's metadata says of the decision."""
+        best_error, best_step = (self.best[0], self.best[1]) if self.best else (float("inf"), 0)
+        return {
+            "kept": best_error < self.without,
+            "validation_images": self.images,
+            "error_without": self.without,
+            "error_with": best_error,
+            "best_step": best_step,
+            "errors": [[step, round(error, 1)] for step, error in self.errors],
+            **({"stopped": self.why} if self.why else {}),
+        }
+
+
+def validated_detail(
+    avatar: Avatar,
+    data: TrainingData,
+    held: list[int],
+    corrections: PoseCorrections | None,
+    config: LoopConfig,
+    lr: float,
+    lpips: nn.Module | None,
+    checkpoint: Path,
+    body_model_path: str | None = None,
+    budget: Budget | None = None,
+) -> tuple[PGHM | None, LoopState, dict]:
+    """A detail layer for ``avatar`` trained on ``data`` without the ``held`` images and kept if it
+    draws those closer (module doc); ``held`` empty: trained for all its steps and kept. Returns
+    the model with its best layer (None when dropped), the stage's state and the decision's record."""
+    if not held:
+        model, state = train_detail(
+            avatar.model, avatar.latent, corrections, data, config, lr, lpips, checkpoint, body_model_path, None, budget
+        )
+        return model, state, {"kept": True}
+    without = squared_error(avatar, data, held, corrections)
+    score = lambda model: squared_error(replace(avatar, model=model), data, held, corrections)
+    validation = DetailValidation(score, without, len(held))
+    trained_on = data.restricted(sorted(set(int(i) for i in data.images[0]) - set(held)))
+    model, state = train_detail(
+        avatar.model, avatar.latent, corrections, trained_on, config, lr, lpips, checkpoint, body_model_path,
+        validation, budget,
+    )
+    record = validation.record()
+    if not record["kept"]:
+        return None, state, record
+    with torch.no_grad():
+        model.detail.maps.copy_(validation.best[2])
+    return model, state, record

@@ -22,6 +22,7 @@ out of it closer than the avatar without it (:mod:`pghm.train.detail`).
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -30,12 +31,13 @@ import numpy as np
 import torch
 from torch import nn
 
+from pghm.body import load_body
 from pghm.device import move
 from pghm.errors import PghmError
-from pghm.body import load_body
 from pghm.io.avatar import Avatar, PoseTrack, load_avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig
 from pghm.model.pghm import COMPONENTS
+from pghm.subject import ALL_SPLIT
 from pghm.train import profile
 from pghm.train.background import TRAINING_BACKGROUND
 from pghm.train.data import ESTIMATOR_ROTATION_SIGMA, PoseCorrections, TrainingData
@@ -44,8 +46,7 @@ from pghm.train.detail import (
     DETAIL_STEPS,
     MIN_VALIDATION_IMAGES,
     VALIDATION_EVERY,
-    squared_error,
-    train_detail,
+    validated_detail,
     validation_images,
 )
 from pghm.train.loop import (
@@ -62,8 +63,8 @@ from pghm.train.loop import (
 from pghm.train.losses import LossWeights
 from pghm.train.optim import LazyAdam
 from pghm.train.person_crop import CROP_MARGIN
+from pghm.train.plan import DETAIL, EARLY_SETTLING, HELD_OUT, POSE_SETTLING, STAGE1, STAGE2, Budget, Phase, describe
 from pghm.train.pose_refine import refine_poses
-from pghm.subject import ALL_SPLIT
 from pghm.train.pose_track import frame_numbers, learned_track, track_corrections
 from pghm.train.run_setup import GeometryCache, checkpoint_path, config_record, lpips_for
 
@@ -187,6 +188,9 @@ class FitConfig:
     full frame's (:mod:`pghm.train.person_crop`); None: whole frames."""
     lpips: bool = True
     body_model_path: str | None = None
+    minutes: float | None = None
+    """A wall-clock budget for the whole fit: the phases are sized to it on the machine as it runs
+    (:mod:`pghm.train.plan`), so the avatar depends on the machine's speed; None: the config's steps."""
 
 
 GPU_CANDIDATE_RESOLUTION = 256
@@ -324,46 +328,39 @@ def add_detail(
     config: FitConfig,
     lpips: nn.Module | None,
     checkpoint: Path,
-) -> None:
+    budget: Budget | None = None,
+) -> dict:
     """Train a detail layer on the finished ``avatar`` and give it to the avatar if it validates
-    (:mod:`pghm.train.detail`); the decision and its figures go to the avatar's metadata."""
+    (:mod:`pghm.train.detail`); returns the decision and its figures, which go to the avatar's metadata."""
     images = [int(i) for i in data.images[0]]
     held = validation_images(images, config.detail_validation)
-    if config.detail_validation and len(held) < MIN_VALIDATION_IMAGES:
-        why = f"{len(images)} training images: too few to validate a layer"
-        avatar.metadata["detail"] = {"kept": False, "why": why}
-        log.info("fit: no detail layer: %d training images are too few to validate one", len(images))
-        return
-    trained_on = data.restricted(sorted(set(images) - set(held))) if held else data
-    model, state = train_detail(
-        avatar.model,
-        avatar.latent,
-        corrections,
-        trained_on,
-        config.detail,
-        config.detail_lr,
-        lpips,
-        checkpoint,
-        config.body_model_path,
+    detail = config.detail if budget is None else replace(config.detail, steps=budget.phases[DETAIL].steps)
+    model, state, record = validated_detail(
+        avatar, data, held, corrections, detail, config.detail_lr, lpips, checkpoint, config.body_model_path, budget
     )
     avatar.metadata["steps"]["detail"] = state.step
-    record = {"kept": True, "seconds": round(state.seconds, 1)}
+    record["seconds"] = round(state.seconds, 1)
     if held:
-        detailed = replace(avatar, model=model)
-        without, with_layer = (squared_error(a, data, held, corrections) for a in (avatar, detailed))
-        record.update(validation_images=len(held), error_without=without, error_with=with_layer)
-        record["kept"] = with_layer < without
         verdict = "kept" if record["kept"] else "dropped"
         log.info(
-            "fit: detail layer %s: squared error of %d held frames %.1f with it, %.1f without",
-            verdict,
-            len(held),
-            with_layer,
-            without,
+            "fit: detail layer %s after %d steps: squared error of %d held frames %.1f with it, %.1f without",
+            verdict, state.step, len(held), record["error_with"], record["error_without"],
         )
-    if record["kept"]:
+    if model is not None:
         avatar.model = model
     avatar.metadata["detail"] = record
+    return record
+
+
+def detail_refusal(config: FitConfig, data: TrainingData) -> str | None:
+    """Why the fit trains no detail layer for ``data``, or None when it does."""
+    if not config.detail.steps:
+        return "--detail-steps 0"
+    images = len(data.images[0])
+    held = validation_images(range(images), config.detail_validation)
+    if config.detail_validation and len(held) < MIN_VALIDATION_IMAGES:
+        return f"{images} training images: too few to validate a layer"
+    return None
 
 
 def initial_latent(model: PGHM) -> torch.Tensor:
@@ -391,23 +388,39 @@ def _checkpoint_stage(payload: dict, path: Path) -> int:
     return stage
 
 
-def fit(
-    subject_dir: str | Path,
-    prior: str | Path | Avatar | ModelConfig,
-    out: str | Path,
-    config: FitConfig | None = None,
-    resume: bool = False,
-    device: torch.device | str = "cpu",
-) -> Avatar:
-    """Personalise ``prior`` to the subject in ``subject_dir`` and save the avatar to ``out``.
+@dataclass
+class FitRun:
+    """What a fit's phases share and change: the config with its defaults resolved, the data, the
+    model with its personal latent and pose corrections, the objective, and the checkpoint."""
 
-    Args:
-        prior: a prior file or loaded prior; or a :class:`ModelConfig` to train the same
-            model from scratch (random network, latent from zero) for comparison.
-        device: where the model, data and optimiser live; the avatar is written from the CPU.
-    """
-    device = torch.device(device)
-    config = config or FitConfig()
+    config: FitConfig
+    subject_dir: Path
+    out: Path
+    checkpoint: Path
+    data: TrainingData
+    model: PGHM
+    latent: nn.Parameter
+    corrections: PoseCorrections | None
+    objective: AvatarObjective
+    geometries: GeometryCache
+    lpips: nn.Module | None
+    lpips_line: str
+    prior_source: str
+    held_out_images: int
+    payload: dict | None
+    start_stage: int
+    states: dict[str, LoopState] = field(default_factory=dict)
+    avatar: Avatar | None = None
+
+    @property
+    def settles_poses(self) -> bool:
+        """Whether the phases after stage 2 refine the pose track: corrections of smoothed poses
+        would not apply to the held-out frames' stored ones."""
+        return self.corrections is not None and not self.config.pose_smoothing
+
+
+def resolved(config: FitConfig, data: TrainingData) -> FitConfig:
+    """``config`` with every default that depends on the subject resolved, its values checked."""
     for name in ("track_steps", "early_track_steps", "held_out_steps"):
         if getattr(config, name) is not None and getattr(config, name) < 0:
             raise PghmError(f"{name} must be >= 0, got {getattr(config, name)}")
@@ -417,23 +430,38 @@ def fit(
     for name in ("latent_lr", "network_lr", "pose_lr", "detail_lr"):
         if getattr(config, name) is not None:
             check_learning_rate(name, getattr(config, name))
-    out = Path(out)
+    if config.minutes is not None and not (math.isfinite(config.minutes) and config.minutes > 0):
+        raise PghmError(f"minutes must be a positive number, got {config.minutes}")
+    sigma = data.pose_noise[0][0]
+    if config.pose_lr is None:
+        config = replace(config, pose_lr=pose_learning_rate(sigma))
+    if config.held_out_steps is None:
+        config = replace(config, held_out_steps=held_out_steps(sigma))
+    if config.early_track_steps is None:
+        config = replace(config, early_track_steps=early_track_steps(sigma))
+    if config.track_steps is None:
+        stage2 = config.stage2
+        visits = stage2.steps * stage2.images_per_shard * stage2.shards / max(len(data.images[0]), 1)
+        config = replace(config, track_steps=track_steps(sigma, visits, config.early_track_steps))
+    return config
+
+
+def prepare(
+    subject_dir: str | Path,
+    prior: str | Path | Avatar | ModelConfig,
+    out: Path,
+    config: FitConfig,
+    resume: bool,
+    device: torch.device,
+) -> FitRun:
+    """Everything a fit's phases need, read and checked before the first step."""
     ckpt = checkpoint_path(out, resume)
     data = TrainingData(
         subject_dir, split=config.split, pose_smoothing=config.pose_smoothing, crop_margin=config.crop_margin
     )
     if data.num_identities != 1:
         raise PghmError(f"{subject_dir}: fit takes one subject folder, found {data.num_identities}")
-    if config.pose_lr is None:
-        config = replace(config, pose_lr=pose_learning_rate(data.pose_noise[0][0]))
-    if config.held_out_steps is None:
-        config = replace(config, held_out_steps=held_out_steps(data.pose_noise[0][0]))
-    if config.early_track_steps is None:
-        config = replace(config, early_track_steps=early_track_steps(data.pose_noise[0][0]))
-    if config.track_steps is None:
-        stage2 = config.stage2
-        visits = stage2.steps * stage2.images_per_shard * stage2.shards / max(len(data.images[0]), 1)
-        config = replace(config, track_steps=track_steps(data.pose_noise[0][0], visits, config.early_track_steps))
+    config = resolved(config, data)
     check_step_memory(data, config.stage1, "fit stage 1")
     check_step_memory(data, config.stage2, "fit stage 2")
     check_step_memory(data, config.detail, "fit detail stage")
@@ -459,110 +487,215 @@ def fit(
     latent = nn.Parameter(initial_latent(model))
     corrections = data.pose_corrections(geometries.body).to(device) if config.refine_poses else None
     lpips, lpips_line = lpips_for(config.lpips, device)
-    objective = AvatarObjective(model, latent, corrections, config.stage1.loss, lpips)
     payload = load_checkpoint(ckpt) if resume else None
-    start_stage = _checkpoint_stage(payload, ckpt) if payload else 1
+    subject_images = len(data.subjects[0].split(ALL_SPLIT).indices)
+    return FitRun(
+        config=config,
+        subject_dir=Path(subject_dir),
+        out=out,
+        checkpoint=ckpt,
+        data=data,
+        model=model,
+        latent=latent,
+        corrections=corrections,
+        objective=AvatarObjective(model, latent, corrections, config.stage1.loss, lpips),
+        geometries=geometries,
+        lpips=lpips,
+        lpips_line=lpips_line,
+        prior_source=prior_source,
+        held_out_images=max(subject_images - len(data.images[0]), 0),
+        payload=payload,
+        start_stage=_checkpoint_stage(payload, ckpt) if payload else 1,
+    )
 
-    stage1_opt = torch.optim.Adam([latent], lr=config.latent_lr)
-    state1 = LoopState(step=config.stage1.steps)
-    if start_stage == 1:
-        state1 = restore(payload, objective, stage1_opt) if payload else LoopState()
-        with profile.phase("stage 1"):
-            state1 = run_stage(
-                objective=objective,
-                trainable=[latent],
-                optimizer=stage1_opt,
-                data=data,
-                geometry_of=geometries,
-                config=config.stage1,
-                checkpoint=ckpt,
-                state=state1,
-                extra={"stage": 1},
-                description="fit 1/2",
-            )
 
-    early_seconds = None
-    if start_stage == 1 and corrections is not None and config.early_track_steps:
-        started = time.perf_counter()
-        with profile.phase("early settling"):
-            stage1 = Avatar(model, "avatar", data.body_name, data.shape(0), latent=latent.detach())
-            steps = config.early_track_steps
-            settle(stage1, data, corrections, config, steps, 0, "settle poses on the stage-1 avatar")
-        model.train()
-        corrections.requires_grad_(True)
-        early_seconds = round(time.perf_counter() - started, 1)
-    network = network_parameters(model)
-    for p in network:
-        p.requires_grad_(True)
-    groups = [{"params": [latent], "lr": config.latent_lr}, {"params": network, "lr": config.network_lr}]
-    if corrections is not None:
-        groups.append({"params": list(corrections.parameters()), "lr": config.pose_lr, "lazy": True})
-    stage2_opt = LazyAdam(groups)
-    state2 = LoopState()
-    if payload and start_stage == 2:
-        state2 = restore(payload, objective, stage2_opt)
-    objective.weights = config.stage2.loss
-    trainable = [p for g in groups for p in g["params"]]
-    with profile.phase("stage 2"):
-        state2 = run_stage(
-            objective=objective,
-            trainable=trainable,
-            optimizer=stage2_opt,
-            data=data,
-            geometry_of=geometries,
-            config=config.stage2,
-            checkpoint=ckpt,
-            state=state2,
-            extra={"stage": 2},
-            description="fit 2/2",
-        )
+def fit_phases(run: FitRun) -> list[Phase]:
+    """The fit's plan at its config's steps: every phase of :data:`pghm.train.plan.PHASES`, 0 steps
+    for those this subject and config leave out."""
+    config, training = run.config, len(run.data.images[0])
+    poses = run.corrections is not None
+    return [
+        Phase(STAGE1, config.stage1.steps),
+        Phase(EARLY_SETTLING, config.early_track_steps if poses else 0, training),
+        Phase(STAGE2, config.stage2.steps),
+        Phase(POSE_SETTLING, config.track_steps if run.settles_poses else 0, training),
+        Phase(HELD_OUT, config.held_out_steps if run.settles_poses else 0, run.held_out_images),
+        Phase(DETAIL, 0 if detail_refusal(config, run.data) else config.detail.steps),
+    ]
 
+
+def _stage(run: FitRun, budget: Budget, number: int) -> dict:
+    """Stage 1 (the latent alone) or stage 2 (latent, network and pose corrections together)."""
+    name, config = (STAGE1, run.config.stage1) if number == 1 else (STAGE2, run.config.stage2)
+    if number == 1:
+        optimizer = torch.optim.Adam([run.latent], lr=run.config.latent_lr)
+        trainable = [run.latent]
+    else:
+        network = network_parameters(run.model)
+        for p in network:
+            p.requires_grad_(True)
+        groups = [
+            {"params": [run.latent], "lr": run.config.latent_lr},
+            {"params": network, "lr": run.config.network_lr},
+        ]
+        if run.corrections is not None:
+            groups.append({"params": list(run.corrections.parameters()), "lr": run.config.pose_lr, "lazy": True})
+            run.corrections.requires_grad_(True)
+        optimizer, trainable = LazyAdam(groups), [p for g in groups for p in g["params"]]
+        run.objective.weights = config.loss
+    state = LoopState()
+    if run.payload and run.start_stage == number:
+        state = restore(run.payload, run.objective, optimizer)
+    budget.start(name, state.step)
+    state = run_stage(
+        objective=run.objective,
+        trainable=trainable,
+        optimizer=optimizer,
+        data=run.data,
+        geometry_of=run.geometries,
+        config=config,
+        checkpoint=run.checkpoint,
+        state=state,
+        extra={"stage": number},
+        description=f"fit {number}/2",
+        budget=budget,
+    )
+    run.states[name] = state
+    return {"psnr": state.history[-1]["psnr"]} if state.history else {}
+
+
+def _early_settling(run: FitRun, budget: Budget) -> dict:
+    """Every training frame's pose settled coarsely against the stage-1 avatar."""
+    steps = budget.start(EARLY_SETTLING).steps
+    stage1 = Avatar(run.model, "avatar", run.data.body_name, run.data.shape(0), latent=run.latent.detach())
+    settle(stage1, run.data, run.corrections, run.config, steps, 0, "settle poses on the stage-1 avatar")
+    run.model.train()
+    budget.progress(steps * len(run.data.images[0]))
+    return {}
+
+
+def finished_avatar(run: FitRun) -> Avatar:
+    """The avatar the two stages made, with the fit's record; refused if the stages trained on nothing."""
+    # A stage not run this time: resumed past stage 1 (its steps done), or planned at 0 steps.
+    state1 = run.states.get(STAGE1, LoopState(step=run.config.stage1.steps if run.start_stage > 1 else 0))
+    state2 = run.states.get(STAGE2, LoopState())
     avatar = Avatar(
-        model=model.eval(),
+        model=run.model.eval(),
         kind="avatar",
-        body_name=data.body_name,
-        shape=data.shape(0),
-        latent=latent.detach().clone(),
+        body_name=run.data.body_name,
+        shape=run.data.shape(0),
+        latent=run.latent.detach().clone(),
         metadata={
             "command": "fit",
-            "data": recorded_path(subject_dir),
-            "prior": prior_source,
-            "prior_identities": model.num_identities,
-            "training_images": int(len(data.images[0])),
+            "data": recorded_path(run.subject_dir),
+            "prior": run.prior_source,
+            "prior_identities": run.model.num_identities,
+            "training_images": int(len(run.data.images[0])),
             "steps": {"stage1": state1.step, "stage2": state2.step},
             "seconds": round(state1.seconds + state2.seconds, 1),
             "threads": torch.get_num_threads(),  # the last bits of every float depend on it
             "skipped_steps": state1.skipped_steps + state2.skipped_steps,
             "skipped_images": [list(b) for b in state2.bad_images],
-            "lpips": lpips_line,
+            "lpips": run.lpips_line,
             "final": state2.history[-1] if state2.history else {},
-            "config": config_record(config),
+            "config": config_record(run.config),
         },
     )
-    if early_seconds is not None:
-        avatar.metadata["early_track_seconds"] = early_seconds
-    for p in model.parameters():
+    for p in run.model.parameters():
         p.requires_grad_(True)
-    check_trained([state1, state2], out)  # before settling: no minutes spent on a failed fit
-    # Corrections of smoothed poses would not apply to the held-out frames' stored ones.
-    if corrections is not None and not config.pose_smoothing:
-        if config.track_steps:
-            started = time.perf_counter()
-            with profile.phase("pose settling"):
-                settle(avatar, data, corrections, config, config.track_steps, config.track_fine_steps, "settle poses")
-            avatar.metadata["track_seconds"] = round(time.perf_counter() - started, 1)
-        avatar.pose_track = move(learned_track(corrections, data), torch.device("cpu"))  # a record, as in the file
-        if config.held_out_steps:
-            started = time.perf_counter()
-            with profile.phase("held-out poses"):
-                track = align_held_out(avatar, subject_dir, config, config.held_out_steps)
-                avatar.pose_track = move(track, torch.device("cpu"))
-            avatar.metadata["held_out_seconds"] = round(time.perf_counter() - started, 1)
-            avatar.metadata["held_out_frames"] = len(avatar.pose_track.aligned)
-    if config.detail.steps:
-        with profile.phase("detail"):
-            add_detail(avatar, data, corrections, config, lpips, ckpt)
-    with profile.phase("save"):
-        save_avatar(out, avatar)
-    ckpt.unlink(missing_ok=True)  # the avatar holds the result; a stale checkpoint would only mislead --resume
+    check_trained([state1, state2], run.out)  # before settling: no minutes spent on a failed fit
+    if run.settles_poses:
+        avatar.pose_track = move(learned_track(run.corrections, run.data), torch.device("cpu"))  # as in the file
     return avatar
+
+
+def _pose_settling(run: FitRun, budget: Budget) -> dict:
+    """Every training frame's correction refined against its image, the avatar frozen."""
+    steps = budget.start(POSE_SETTLING).steps
+    settle(run.avatar, run.data, run.corrections, run.config, steps, run.config.track_fine_steps, "settle poses")
+    run.avatar.pose_track = move(learned_track(run.corrections, run.data), torch.device("cpu"))
+    budget.progress(steps * len(run.data.images[0]))
+    return {}
+
+
+def _held_out(run: FitRun, budget: Budget) -> dict:
+    """The frames held out of training aligned to their own images (:func:`align_held_out`)."""
+    steps = budget.start(HELD_OUT).steps
+    track = align_held_out(run.avatar, run.subject_dir, run.config, steps)
+    run.avatar.pose_track = move(track, torch.device("cpu"))
+    budget.progress(steps * run.held_out_images)
+    return {"frames": len(run.avatar.pose_track.aligned)}
+
+
+def _detail(run: FitRun, budget: Budget) -> dict:
+    budget.start(DETAIL)
+    record = add_detail(run.avatar, run.data, run.corrections, run.config, run.lpips, run.checkpoint, budget)
+    return {"kept": record["kept"]}
+
+
+def fit(
+    subject_dir: str | Path,
+    prior: str | Path | Avatar | ModelConfig,
+    out: str | Path,
+    config: FitConfig | None = None,
+    resume: bool = False,
+    device: torch.device | str = "cpu",
+) -> Avatar:
+    """Personalise ``prior`` to the subject in ``subject_dir`` and save the avatar to ``out``: the
+    phases of :func:`fit_phases` in order, each sized by the plan (:mod:`pghm.train.plan`; with
+    ``config.minutes``, to that wall-clock budget).
+
+    Args:
+        prior: a prior file or loaded prior; or a :class:`ModelConfig` to train the same
+            model from scratch (random network, latent from zero) for comparison.
+        device: where the model, data and optimiser live; the avatar is written from the CPU.
+    """
+    started = time.perf_counter()  # a budget counts the set-up too: it is the command's wall time
+    run = prepare(subject_dir, prior, Path(out), config or FitConfig(), resume, torch.device(device))
+    minutes = run.config.minutes
+    budget = Budget(fit_phases(run), None if minutes is None else 60 * minutes, started=started)
+    log.info("fit plan%s:\n%s", f" for {minutes:g} min" if minutes else "", describe(budget.plan(), budget.costs))
+    phases = {
+        STAGE1: lambda: _stage(run, budget, 1),
+        EARLY_SETTLING: lambda: _early_settling(run, budget),
+        STAGE2: lambda: _stage(run, budget, 2),
+        POSE_SETTLING: lambda: _pose_settling(run, budget),
+        HELD_OUT: lambda: _held_out(run, budget),
+        DETAIL: lambda: _detail(run, budget),
+    }
+    for name, phase in phases.items():
+        if name == POSE_SETTLING:
+            run.avatar = finished_avatar(run)
+        if name in (STAGE1, EARLY_SETTLING) and run.start_stage > 1:
+            budget.skip(name, "resumed in stage 2")
+        elif not budget.phases[name].steps:
+            budget.skip(name, "not planned")
+            if name == DETAIL and run.config.detail.steps:
+                why = detail_refusal(run.config, run.data) or "no time left in the budget"
+                run.avatar.metadata["detail"] = {"kept": False, "why": why}
+        else:
+            with profile.phase(name):
+                budget.finish(phase())
+            if name == STAGE1:
+                log.info("fit: stage 1 done; the rest of the plan:\n%s", describe(budget.remaining(), budget.costs))
+    record_plan(run.avatar, budget)
+    with profile.phase("save"):
+        save_avatar(run.out, run.avatar)
+    # The avatar holds the result; a stale checkpoint would only mislead --resume.
+    run.checkpoint.unlink(missing_ok=True)
+    return run.avatar
+
+
+def record_plan(avatar: Avatar, budget: Budget) -> None:
+    """The plan's record in the avatar's metadata: per phase its steps, seconds and what it bought;
+    the budget, if any; and the settling phases' seconds under the names the metadata always had."""
+    avatar.metadata["plan"] = {name: budget.records[name] for name in budget.order if name in budget.records}
+    if budget.deadline is not None:
+        avatar.metadata["budget_seconds"] = round(budget.deadline - budget.started, 1)
+        avatar.metadata["fit_seconds"] = round(budget.elapsed(), 1)
+    seconds_keys = {EARLY_SETTLING: "early_track_seconds", POSE_SETTLING: "track_seconds", HELD_OUT: "held_out_seconds"}
+    for name, key in seconds_keys.items():
+        if budget.records.get(name, {}).get("steps"):
+            avatar.metadata[key] = budget.records[name]["seconds"]
+    if HELD_OUT in budget.records and budget.records[HELD_OUT].get("steps"):
+        avatar.metadata["held_out_frames"] = budget.records[HELD_OUT]["frames"]

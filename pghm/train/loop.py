@@ -42,6 +42,7 @@ from pghm.train.background import BACKGROUND_KINDS, BLACK, WHITE, composite_rend
 from pghm.train.data import PoseCorrections, Sample, TrainingData
 from pghm.train.losses import LossWeights, objective, psnr, silhouette
 from pghm.train.person_crop import area_tensor
+from pghm.train.plan import Budget
 
 log = logging.getLogger(__name__)
 
@@ -398,12 +399,15 @@ def run_stage(
     state: LoopState,
     extra: dict,
     description: str,
+    budget: Budget | None = None,
 ) -> LoopState:
     """Run steps ``state.step`` .. ``config.steps`` - 1 of one stage; returns the final state.
 
     ``trainable`` are the parameters ``optimizer`` steps, ``geometry_of`` an identity's geometry,
     ``extra`` what the checkpoint records beside the state (the stage, the kind), ``description``
-    the progress bar's label.
+    the progress bar's label. ``budget``: the fit's plan (:mod:`pghm.train.plan`), in this stage's
+    phase, which sets the stage's steps instead of ``config.steps`` (asked again after each step)
+    and whose time left the bar shows.
 
     Raises KeyboardInterrupt after saving a checkpoint when interrupted.
     """
@@ -421,8 +425,9 @@ def run_stage(
             group["lr"] = lr * state.lr_scale
 
     set_lr()
+    steps = config.steps if budget is None else budget.steps(state.step)
     progress = tqdm(
-        total=config.steps,
+        total=steps,
         initial=state.step,
         desc=description,
         disable=rank != 0 or not config.progress,
@@ -431,7 +436,7 @@ def run_stage(
     )
     started = time.perf_counter() - state.seconds
     try:
-        while state.step < config.steps:
+        while state.step < steps:
             plan = data.plan(config.seed, state.step, config.shards, config.images_per_shard, config.same_instant)
             mine = plan[rank::world]
             optimizer.zero_grad(set_to_none=False)
@@ -484,10 +489,16 @@ def run_stage(
                 )
             state.step += 1
             state.seconds = time.perf_counter() - started
+            postfix = {}
+            if budget is not None:
+                budget.progress(state.step)
+                steps = progress.total = budget.steps(state.step)
+                postfix["fit_left"] = f"{budget.eta() / 60:.1f}min"
             if groups:
                 mean = {k: v / groups for k, v in terms_sum.items()}
                 state.history.append({"step": state.step, **{k: round(v, 5) for k, v in mean.items()}})
-                progress.set_postfix(loss=f"{mean['loss']:.4f}", psnr=f"{mean['psnr']:.2f}")
+                postfix.update(loss=f"{mean['loss']:.4f}", psnr=f"{mean['psnr']:.2f}")
+            progress.set_postfix(postfix)
             progress.update(1)
             if rank == 0 and config.checkpoint_every > 0 and state.step % config.checkpoint_every == 0:
                 state.bad_images = sorted(data.bad)
