@@ -11,4 +11,4 @@ demo: setup
 	@echo "wrote out/demo.mp4 and out/demo.png; open the live viewer with .venv/bin/pghm-view (needs a display)"
 
 test: setup
-	.venv/bin/python -m pytest -q -n 2 --dist loadfile
+	.venv/bin/python -m pytest -q -n 2 --dist loadfile --durations=15

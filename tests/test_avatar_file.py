@@ -176,6 +176,9 @@ def test_pose_track_round_trip_and_bad_tracks(tmp_path):
         "negative_bone": ({**track, "bones": torch.tensor([-1, 5])}, "non-negative"),
         "rotations_shape": ({**track, "rotations": torch.randn(3, 3, 3)}, "pose_track.rotations' has shape"),
         "translation_nan": ({**track, "translation": torch.full((3, 3), float("nan"))}, "non-finite"),
+        # The physical ranges of poses.npz and motion files (pghm.motion.motion), just past them.
+        "rotations_absurd": ({**track, "rotations": torch.full((3, 2, 3), 1.01e3)}, "rotations' has values beyond"),
+        "translation_absurd": ({**track, "translation": torch.full((3, 3), -1.01e4)}, "translation' has values"),
         "digest": ({**track, "poses": 7}, "digest"),
         "aligned_unknown": ({**track, "aligned": track["frames"][-1:] + 1}, "aligned' lists frames the track has no"),
         "aligned_float": ({**track, "aligned": torch.tensor([0.0])}, "pose_track.aligned' is not"),

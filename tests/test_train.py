@@ -538,3 +538,23 @@ def test_a_fit_with_a_budget_spends_it_and_records_its_plan(tiny_dataset, prior_
     assert steps["stage1"] > 3 and steps["stage2"] > 6
     assert list(metadata["plan"]) == ["stage 1", "early settling", "stage 2", "pose settling", "held-out poses", "detail"]
     assert metadata["plan"]["stage 2"]["steps"] == steps["stage2"] and metadata["plan"]["detail"]["steps"] == 0
+
+
+def test_refusals_come_before_the_work(tiny_dataset, prior_file, tmp_path, monkeypatch):
+    """More identities than the data set holds, and a detail layer past the largest atlas, are one
+    line each before any step runs (no silent clamp, no minutes of stages first)."""
+    import pghm.train.fit as fit_module
+    from pghm.errors import DatasetError, PghmError
+    from pghm.uv.atlas import MAX_RESOLUTION
+
+    def no_step(**_):
+        raise AssertionError("a step ran before the refusal")
+
+    monkeypatch.setattr(fit_module, "run_stage", no_step)
+    with pytest.raises(DatasetError, match="asked for 3 identities, the data set holds 2"):
+        TrainingData(tiny_dataset, max_identities=3)
+    stages = [LoopConfig(steps=1, images_per_shard=2, checkpoint_every=0) for _ in range(2)]
+    config = FitConfig(*stages, lpips=False, uv_resolution=MAX_RESOLUTION, detail_validation=0)
+    with pytest.raises(PghmError, match=f"a detail layer needs 2L <= {MAX_RESOLUTION}"):
+        fit(tiny_dataset / "subject_001", prior_file, tmp_path / "a.pt", config)
+    assert not (tmp_path / "a.pt").exists()

@@ -39,6 +39,7 @@ from pghm.io.atomic import atomic_write_bytes
 from pghm.io.torch_file import TorchFileError, load_torch_file
 from pghm.model.config import ModelConfig
 from pghm.model.pghm import PGHM
+from pghm.motion.motion import MAX_ROTATION, MAX_TRANSLATION
 
 FORMAT_NAME = "pghm-avatar"
 FORMAT_VERSION = 2
@@ -288,7 +289,10 @@ def _short(value: object) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def _check_tensor(path: Path, name: str, value: object, shape: tuple[int, ...] | None) -> Tensor:
+def _check_tensor(
+    path: Path, name: str, value: object, shape: tuple[int, ...] | None, limit: tuple[float, str] | None = None
+) -> Tensor:
+    """``value`` as a float tensor of ``shape``, finite and (``limit``: (bound, unit)) within +-bound."""
     if not isinstance(value, Tensor):
         raise _fail(path, f"'{name}' is not a tensor")
     if not value.is_floating_point():
@@ -297,6 +301,9 @@ def _check_tensor(path: Path, name: str, value: object, shape: tuple[int, ...] |
         raise _fail(path, f"'{name}' has shape {tuple(value.shape)}, expected {shape}")
     if not torch.isfinite(value).all():
         raise _fail(path, f"'{name}' has non-finite values")
+    largest = float(value.abs().max()) if value.numel() else 0.0
+    if limit is not None and largest > limit[0]:
+        raise _fail(path, f"'{name}' has values beyond +-{limit[0]:g} {limit[1]} (largest {largest:.3g})")
     return value.float()
 
 
@@ -326,8 +333,12 @@ def _load_track(path: Path, value: object) -> PoseTrack | None:
     return PoseTrack(
         frames=frames,
         bones=bones,
-        rotations=_check_tensor(path, "pose_track.rotations", value["rotations"], (len(frames), len(bones), 3)),
-        translation=_check_tensor(path, "pose_track.translation", value["translation"], (len(frames), 3)),
+        rotations=_check_tensor(
+            path, "pose_track.rotations", value["rotations"], (len(frames), len(bones), 3), (MAX_ROTATION, "rad")
+        ),
+        translation=_check_tensor(
+            path, "pose_track.translation", value["translation"], (len(frames), 3), (MAX_TRANSLATION, "m")
+        ),
         poses=value["poses"],
         aligned=aligned,
     )

@@ -143,6 +143,10 @@ class TrainingData:
         if max_identities is not None:
             if max_identities < 1:
                 raise DatasetError(f"max_identities must be at least 1, got {max_identities}")
+            if max_identities > len(self.subjects):
+                raise DatasetError(
+                    f"{root}: asked for {max_identities} identities, the data set holds {len(self.subjects)}"
+                )
             self.subjects = self.subjects[:max_identities]
         if not self.subjects:
             raise DatasetError(f"{root}: the data set lists no subjects")

@@ -36,6 +36,7 @@ from pghm.device import move
 from pghm.errors import PghmError
 from pghm.io.avatar import Avatar, PoseTrack, load_avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig
+from pghm.model.detail import DETAIL_FACTOR
 from pghm.model.pghm import COMPONENTS
 from pghm.subject import ALL_SPLIT
 from pghm.train import profile
@@ -67,6 +68,7 @@ from pghm.train.plan import DETAIL, EARLY_SETTLING, HELD_OUT, POSE_SETTLING, STA
 from pghm.train.pose_refine import refine_poses
 from pghm.train.pose_track import frame_numbers, learned_track, track_corrections
 from pghm.train.run_setup import GeometryCache, checkpoint_path, config_record, lpips_for
+from pghm.uv.atlas import MAX_RESOLUTION
 
 log = logging.getLogger(__name__)
 
@@ -479,6 +481,11 @@ def prepare(
         if config.uv_resolution not in (None, model.config.uv_resolution):
             model = model.at_resolution(config.uv_resolution)
         prior_source = recorded_path(prior) if not isinstance(prior, Avatar) else "(in memory)"
+    if detail_refusal(config, data) is None and DETAIL_FACTOR * model.config.uv_resolution > MAX_RESOLUTION:
+        raise PghmError(
+            f"a detail layer needs {DETAIL_FACTOR}L <= {MAX_RESOLUTION}, L is {model.config.uv_resolution}: "
+            "give a smaller --uv-resolution or --detail-steps 0"
+        )
     model = model.to(device)
     model.train()
     for p in model.parameters():
