@@ -78,6 +78,25 @@ def test_check_names_an_image_of_the_wrong_size(subject_dir, capsys):
     assert _cli_check(subject_dir, capsys)[0] == 2
 
 
+def test_images_of_two_sizes_are_refused_by_the_check_and_the_loader(subject_dir, capsys):
+    """Frame 1 at 128 x 128 among 64 x 64 frames, its camera scaled to match and its files that size:
+    each image agrees with its camera, but a training step renders a subject's images as one batch,
+    so ``data check`` and the loader every training command reads through refuse it, in one line."""
+    from pghm.train.data import TrainingData
+
+    cameras = subject_dir / "cameras.npz"
+    width, height, K = _array(cameras, "width"), _array(cameras, "height"), _array(cameras, "K")
+    width[1], height[1], K[1, :2] = 128, 128, 2 * K[1, :2]
+    _rewrite_npz(cameras, width=width, height=height, K=K)
+    Image.new("RGB", (128, 128), "white").save(subject_dir / "images" / image_name(1))
+    Image.new("L", (128, 128), 255).save(subject_dir / "masks" / image_name(1))
+    message = "the images have 2 sizes (64x64, 128x128); a subject's images must all have one size"
+    assert _problems(subject_dir) == [f"cameras.npz: {message}"]
+    assert _cli_check(subject_dir, capsys)[0] == 2
+    with pytest.raises(DatasetError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        TrainingData(subject_dir)
+
+
 def test_check_names_a_non_finite_pose(subject_dir, capsys):
     rotations = _array(subject_dir / "poses.npz", "rotations")
     rotations[4, 10, 1] = np.nan

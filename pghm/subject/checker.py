@@ -27,6 +27,7 @@ from pghm.subject.format import (
     focal_range,
     image_name,
     indices_text,
+    size_problem,
     stated_aligned_frames,
     stated_pose_noise,
     value_problems,
@@ -238,6 +239,8 @@ def check_subject(directory: str | Path, images: bool = True) -> list[Problem]:
             Problem("cameras.npz", f"height and width must be positive for image(s) {indices_text(bad_size)}")
         )
         return problems
+    if (problem := size_problem(cameras["width"], cameras["height"])) is not None:
+        problems.append(Problem("cameras.npz", problem))
     if not images:
         return problems
     for folder in ("images", "masks"):

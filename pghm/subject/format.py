@@ -182,6 +182,17 @@ VALUE_BOUNDS = {
 rad or a camera 1e40 m away is corrupt data, refused at the loader rather than met as a NaN."""
 
 
+def size_problem(width: np.ndarray, height: np.ndarray) -> str | None:
+    """Why a subject's image sizes (n,) cannot be trained on, or None: a training step renders a
+    subject's images as one batch, so they must share one size. Shared by ``pghm data check`` and
+    the loader that ``fit``, ``eval`` and ``train-prior`` read through."""
+    sizes = sorted({(int(w), int(h)) for w, h in zip(width, height)})
+    if len(sizes) <= 1:
+        return None
+    listed = ", ".join(f"{w}x{h}" for w, h in sizes[:4]) + (", ..." if len(sizes) > 4 else "")
+    return f"the images have {len(sizes)} sizes ({listed}); a subject's images must all have one size"
+
+
 def value_problems(
     cameras: dict[str, np.ndarray], poses: dict[str, np.ndarray] | None
 ) -> list[tuple[str, str, np.ndarray]]:

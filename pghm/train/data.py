@@ -27,6 +27,7 @@ from pghm.errors import DatasetError, PghmError, listed
 from pghm.io.read_errors import IMAGE_READ_ERRORS
 from pghm.splat import Camera
 from pghm.subject import Frame, Subject, open_subjects, read_mask, stated_pose_noise
+from pghm.subject.format import size_problem
 from pghm.train.person_crop import Crop, crop_size, mask_box, place
 from pghm.train.pose_smoothing import smooth_track
 
@@ -163,6 +164,8 @@ class TrainingData:
         for subject, images in zip(self.subjects, self.images):
             if len(images) == 0:
                 raise DatasetError(f"{subject.directory}: no '{split}' images")
+            if (problem := size_problem(subject.arrays.width, subject.arrays.height)) is not None:
+                raise DatasetError(f"{subject.directory / 'cameras.npz'}: {problem}")
             self._check_files(subject, images)
         # One pose-correction slot per (identity, frame): the views of an instant share it.
         self.frame_offsets = []
