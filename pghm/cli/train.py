@@ -21,7 +21,7 @@ from pghm.cli.options import (
 )
 from pghm.cli.render import parse_colour
 from pghm.errors import PghmError
-from pghm.io.atomic import atomic_write_bytes
+from pghm.io.atomic import all_or_none
 from pghm.io.outputs import PNG_SUFFIXES, check_output
 from pghm.model import ModelConfig
 from pghm.model.config import MAX_CHANNELS
@@ -331,13 +331,14 @@ def cmd_fit(args: argparse.Namespace) -> int:
         minutes=args.minutes,
     )
     prior = ModelConfig() if args.prior == "scratch" else args.prior
-    if args.profile is None:
-        avatar = fit(args.subject_dir, prior, args.out, config, resume=args.resume, device=device)
-    else:
-        with profiled() as timing:
-            avatar = fit(args.subject_dir, prior, args.out, config, resume=args.resume, device=device)
-        print(timing.table(), file=sys.stderr)
-        atomic_write_bytes(args.profile, json.dumps(timing.record(), indent=2).encode())
+    with all_or_none() as outputs:  # the avatar and its profile, both or neither
+        if args.profile is None:
+            avatar = fit(args.subject_dir, prior, args.out, config, args.resume, device, outputs)
+        else:
+            with profiled() as timing:
+                avatar = fit(args.subject_dir, prior, args.out, config, args.resume, device, outputs)
+            print(timing.table(), file=sys.stderr)
+            outputs.write_bytes(args.profile, json.dumps(timing.record(), indent=2).encode())
     print(f"wrote {args.out}: {avatar.metadata['steps']} steps, {avatar.metadata['seconds']} s")
     return 0
 

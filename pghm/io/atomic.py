@@ -10,7 +10,10 @@ umask), or the destination's own when it replaces an existing file, so an atomic
 makes an output private (``tempfile.mkstemp`` would create it 0o600).
 
 Every writer in pghm and the viewer goes through here: ``tests/stress/test_nothing_lost.py``
-checks each one and kills writers mid-save.
+checks each one and kills writers mid-save. A write that fails (a full disk, a quota, an I/O
+error) is one line naming the file, ``OUT: no space left on device (N MB free)``
+(:func:`write_failure`), and a command with several outputs writes them all or none
+(:func:`all_or_none`).
 
 A kill test chooses where a save is interrupted through :func:`pghm._fault_injection.save_point`,
 called at the three states a save can be in: ``created``, ``written`` and ``renamed``.
@@ -19,6 +22,7 @@ called at the three states a save can be in: ``created``, ``written`` and ``rena
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import os
 import secrets
@@ -28,6 +32,7 @@ from pathlib import Path
 from typing import BinaryIO
 
 from pghm._fault_injection import save_point
+from pghm.errors import PghmError
 
 TEMPORARY_SUFFIX = ".tmp"
 """Temporary files are ``.<name>.<random>.tmp`` (plus ``suffix`` when one is asked for)."""
@@ -56,21 +61,110 @@ def _commit(temporary: Path, path: Path) -> None:
     save_point("renamed", path)
 
 
+SPACE_ERRORS = (errno.ENOSPC, errno.EDQUOT)
+"""Write errors for which the free space is worth stating."""
+
+
+def free_megabytes(path: Path) -> float | None:
+    """Megabytes free to an unprivileged writer on the filesystem holding ``path``'s folder."""
+    try:
+        status = os.statvfs(path.parent)
+    except OSError:
+        return None
+    return status.f_bavail * status.f_frsize / 2**20
+
+
+def write_failure(path: Path, error: OSError) -> PghmError:
+    """The one line for a failed write of ``path``: ``path: no space left on device (12 MB free)``."""
+    reason = (error.strerror or str(error)).lower() if error.errno else str(error)
+    free = free_megabytes(path) if error.errno in SPACE_ERRORS else None
+    return PghmError(f"{path}: {reason}" + (f" ({free:.0f} MB free)" if free is not None else ""))
+
+
+@contextlib.contextmanager
+def _written(path: Path, temporary: Path) -> Iterator[None]:
+    """Remove ``temporary`` if the block fails; an OSError becomes :func:`write_failure`'s line."""
+    try:
+        yield
+    except OSError as error:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(temporary)
+        raise write_failure(path, error) from None
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(temporary)
+        raise
+
+
+def _write_temporary(path: Path, write: Callable[[BinaryIO], object]) -> Path:
+    """``write(file)`` into a new fsynced temporary beside ``path``; its path (removed on failure)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, temporary = _create_temporary(path, "")
+    with _written(path, temporary), os.fdopen(fd, "wb") as file:
+        write(file)
+        file.flush()
+        os.fsync(file.fileno())
+    return temporary
+
+
 @contextlib.contextmanager
 def atomic_open(path: str | os.PathLike) -> Iterator[BinaryIO]:
     """Open a binary temporary file that replaces ``path`` atomically on success."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, temporary = _create_temporary(path, "")
-    try:
+    with _written(path, temporary):
         with os.fdopen(fd, "wb") as file:
             yield file
             file.flush()
             os.fsync(file.fileno())
         _commit(temporary, path)
+
+
+class Outputs:
+    """A command's outputs, written together (:func:`all_or_none`): each write goes to a fsynced
+    temporary beside its file, and only when every one has succeeded are they all renamed into
+    place; then the ``after`` callbacks run (what may go only once the outputs exist: a checkpoint)."""
+
+    def __init__(self) -> None:
+        self.pending: list[tuple[Path, Path]] = []
+        self.after: list[Callable[[], object]] = []
+
+    def write(self, path: str | os.PathLike, write: Callable[[BinaryIO], object]) -> None:
+        path = Path(path)
+        self.pending.append((_write_temporary(path, write), path))
+
+    def write_bytes(self, path: str | os.PathLike, data: bytes) -> None:
+        self.write(path, lambda file: file.write(data))
+
+    def commit(self) -> None:
+        for temporary, path in self.pending:
+            with _written(path, temporary):
+                _commit(temporary, path)
+        self.pending = []
+        for callback in self.after:
+            callback()
+
+    def discard(self) -> None:
+        for temporary, _ in self.pending:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(temporary)
+        self.pending = []
+
+
+@contextlib.contextmanager
+def all_or_none() -> Iterator[Outputs]:
+    """Outputs written in the block appear together when it ends normally, none if it fails."""
+    outputs = Outputs()
+    try:
+        yield outputs
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(temporary)
+        outputs.discard()
+        raise
+    try:
+        outputs.commit()
+    except BaseException:
+        outputs.discard()
         raise
 
 
@@ -91,16 +185,13 @@ class PendingFile:
         os.close(fd)
 
     def commit(self) -> None:
-        try:
+        with _written(self.destination, self.path):
             fd = os.open(self.path, os.O_RDONLY)
             try:
                 os.fsync(fd)
             finally:
                 os.close(fd)
             _commit(self.path, self.destination)
-        except BaseException:
-            self.discard()
-            raise
 
     def discard(self) -> None:
         with contextlib.suppress(FileNotFoundError):
@@ -121,8 +212,10 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
 
 def atomic_write(path: str | os.PathLike, write: Callable[[BinaryIO], object]) -> None:
     """Call ``write(file)`` on a temporary file, then move it over ``path`` atomically."""
-    with atomic_open(path) as file:
-        write(file)
+    path = Path(path)
+    temporary = _write_temporary(path, write)
+    with _written(path, temporary):
+        _commit(temporary, path)
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
@@ -131,8 +224,6 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
 
 def save_figure(figure, path: str | os.PathLike, **options) -> None:
     """Save a matplotlib figure atomically, in the format its suffix names (.png, .pdf, .svg, ...)."""
-    from pghm.errors import PghmError
-
     path = Path(path)
     buffer = io.BytesIO()
     try:

@@ -35,7 +35,7 @@ from torch import Tensor
 from pghm.body.model import shape_problem
 from pghm.device import move
 from pghm.errors import AvatarFileError, PghmError
-from pghm.io.atomic import atomic_write_bytes
+from pghm.io.atomic import Outputs, atomic_write_bytes
 from pghm.io.torch_file import TorchFileError, load_torch_file
 from pghm.model.config import ModelConfig
 from pghm.model.pghm import PGHM
@@ -255,13 +255,14 @@ def _track_payload(track: PoseTrack) -> dict:
     }
 
 
-def save_avatar(path: str | Path, avatar: Avatar) -> None:
-    """Write ``avatar`` to ``path`` atomically."""
+def save_avatar(path: str | Path, avatar: Avatar, outputs: Outputs | None = None) -> None:
+    """Write ``avatar`` to ``path`` atomically (with ``outputs``: as one of a command's outputs,
+    which appear together, :func:`pghm.io.atomic.all_or_none`)."""
     if avatar.kind not in KINDS:
         raise PghmError(f"avatar kind must be one of {KINDS}, got {avatar.kind!r}")
     buffer = io.BytesIO()
     torch.save(avatar_payload(avatar), buffer)
-    atomic_write_bytes(path, buffer.getvalue())
+    (outputs.write_bytes if outputs is not None else atomic_write_bytes)(path, buffer.getvalue())
 
 
 def _fail(path: Path, problem: str) -> AvatarFileError:

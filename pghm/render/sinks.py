@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Literal, Protocol
@@ -16,7 +17,7 @@ from typing import Literal, Protocol
 import numpy as np
 
 from pghm.errors import PghmError
-from pghm.io.atomic import PendingFile, atomic_write_bytes
+from pghm.io.atomic import PendingFile, atomic_write_bytes, free_megabytes
 from pghm.io.outputs import StagedFolder, check_output
 
 PNG_PATTERN = "frame_{:05d}.png"
@@ -88,13 +89,22 @@ class Mp4Sink:
                 quality=MP4_QUALITY,
                 macro_block_size=1,
                 pix_fmt_out="yuv420p",
-                ffmpeg_log_level="error",
+                ffmpeg_log_level="quiet",  # its failures are this sink's one line (encoder_failure)
             )
             self._writer.send(None)  # start the generator
         if (width, height) != self._size:
             raise PghmError(f"frame size changed from {self._size} to {(width, height)} while recording")
-        self._writer.send(np.ascontiguousarray(image, dtype=np.uint8))
+        try:
+            self._writer.send(np.ascontiguousarray(image, dtype=np.uint8))
+        except (OSError, RuntimeError):  # ffmpeg died: its pipe broke
+            raise self.encoder_failure() from None
         self.frames += 1
+
+    def encoder_failure(self) -> PghmError:
+        """The one line for an encoder that stopped or wrote nothing (a full disk, most often)."""
+        free = free_megabytes(self.path)
+        space = f" ({free:.0f} MB free)" if free is not None else ""
+        return PghmError(f"{self.path}: the video encoder failed{space}")
 
     def close(self) -> None:
         """Finish the video and move it to ``path``."""
@@ -102,9 +112,16 @@ class Mp4Sink:
             writer, pending, self._writer, self._pending = self._writer, self._pending, None, None
             try:
                 writer.close()
+                written = os.path.getsize(pending.path)
+            except (OSError, RuntimeError):
+                pending.discard()
+                raise self.encoder_failure() from None
             except BaseException:
                 pending.discard()
                 raise
+            if written == 0:  # ffmpeg failed and exited without a word to imageio-ffmpeg
+                pending.discard()
+                raise self.encoder_failure()
             pending.commit()
 
     def abort(self) -> None:

@@ -31,7 +31,7 @@ from torch import Tensor
 from pghm.body import load_body
 from pghm.device import move
 from pghm.errors import PghmError
-from pghm.io.atomic import atomic_write_bytes
+from pghm.io.atomic import all_or_none
 from pghm.io.avatar import Avatar, load_avatar, recorded_path
 from pghm.train import pose_refine
 from pghm.train.background import WHITE
@@ -220,9 +220,11 @@ def evaluate(
                 )
             ],
         }
-        atomic_write_bytes(report, json.dumps(payload, indent=2, allow_nan=True).encode())
-    if strip is not None and rows:
-        buffer = io.BytesIO()
-        Image.fromarray(np.concatenate(rows, axis=0)).save(buffer, format="PNG")
-        atomic_write_bytes(strip, buffer.getvalue())
+    with all_or_none() as outputs:  # the report and the strip, both or neither
+        if report is not None:
+            outputs.write_bytes(report, json.dumps(payload, indent=2, allow_nan=True).encode())
+        if strip is not None and rows:
+            buffer = io.BytesIO()
+            Image.fromarray(np.concatenate(rows, axis=0)).save(buffer, format="PNG")
+            outputs.write_bytes(strip, buffer.getvalue())
     return result

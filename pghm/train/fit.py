@@ -34,6 +34,7 @@ from torch import nn
 from pghm.body import load_body
 from pghm.device import move
 from pghm.errors import PghmError
+from pghm.io.atomic import Outputs
 from pghm.io.avatar import Avatar, PoseTrack, load_avatar, recorded_path, save_avatar
 from pghm.model import PGHM, ModelConfig
 from pghm.model.detail import DETAIL_FACTOR
@@ -647,6 +648,7 @@ def fit(
     config: FitConfig | None = None,
     resume: bool = False,
     device: torch.device | str = "cpu",
+    outputs: Outputs | None = None,
 ) -> Avatar:
     """Personalise ``prior`` to the subject in ``subject_dir`` and save the avatar to ``out``: the
     phases of :func:`fit_phases` in order, each sized by the plan (:mod:`pghm.train.plan`; with
@@ -656,6 +658,8 @@ def fit(
         prior: a prior file or loaded prior; or a :class:`ModelConfig` to train the same
             model from scratch (random network, latent from zero) for comparison.
         device: where the model, data and optimiser live; the avatar is written from the CPU.
+        outputs: the command's outputs, when the avatar is one of several that appear together
+            (:func:`pghm.io.atomic.all_or_none`); the checkpoint is removed once they do.
     """
     started = time.perf_counter()  # a budget counts the set-up too: it is the command's wall time
     run = prepare(subject_dir, prior, Path(out), config or FitConfig(), resume, torch.device(device))
@@ -687,9 +691,13 @@ def fit(
                 log.info("fit: stage 1 done; the rest of the plan:\n%s", describe(budget.remaining(), budget.costs))
     record_plan(run.avatar, budget)
     with profile.phase("save"):
-        save_avatar(run.out, run.avatar)
+        save_avatar(run.out, run.avatar, outputs)
     # The avatar holds the result; a stale checkpoint would only mislead --resume.
-    run.checkpoint.unlink(missing_ok=True)
+    forget_checkpoint = lambda: run.checkpoint.unlink(missing_ok=True)
+    if outputs is None:
+        forget_checkpoint()
+    else:
+        outputs.after.append(forget_checkpoint)
     return run.avatar
 
 

@@ -287,6 +287,9 @@ ATOMIC_BY_CONSTRUCTION = {
     ("pghm/cli/motion.py", "motion.save"),  # Motion.save: atomic_write_bytes (checked above)
     ("pghm/render/sinks.py", "imageio_ffmpeg.write_frames"),  # into a PendingFile's temporary path
     ("pghm/synth/video.py", "imageio_ffmpeg.write_frames"),  # into atomic_path's temporary path
+    # pghm.io.atomic.Outputs (all_or_none): fsynced temporaries, renamed together.
+    ("pghm/cli/train.py", "outputs.write_bytes"),
+    ("pghm/train/evaluate.py", "outputs.write_bytes"),
 }
 
 

@@ -1,0 +1,101 @@
+"""Outputs on a full disk: one line naming the file and the space left, exit status 2, and a command
+with several outputs leaves all or none of them; a video the encoder could not write is refused,
+not left empty. Runs on a real full filesystem (a tmpfs this test mounts and fills), skipped where
+the machine does not let it mount one."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import subprocess
+from pathlib import Path
+
+import pytest
+from conftest import TINY_MODEL
+
+from pghm.cli.main import main
+from pghm.model import ModelConfig
+from pghm.train.loop import LoopConfig
+from pghm.train.prior import PriorConfig, train_prior
+
+SUBJECT = "subject_000"
+FULL_BYTES = 256 * 1024
+"""Size of the full filesystem: a few pages, filled by one file before each command."""
+
+
+def mount_full(directory: Path) -> bool:
+    """Mount a tmpfs of :data:`FULL_BYTES` at ``directory`` and fill it; False where mounting is refused."""
+    directory.mkdir()
+    if os.geteuid() != 0:
+        return False
+    mounted = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={FULL_BYTES}", "tmpfs", str(directory)], capture_output=True
+    )
+    if mounted.returncode != 0:
+        return False
+    with contextlib.suppress(OSError), open(directory / "filler", "wb") as filler:
+        while True:
+            filler.write(b"\0" * 4096)
+            filler.flush()
+    return True
+
+
+@pytest.fixture
+def full(tmp_path):
+    directory = tmp_path / "full"
+    if not mount_full(directory):
+        pytest.skip("cannot mount a tmpfs here (needs root and CAP_SYS_ADMIN)")
+    yield directory
+    subprocess.run(["umount", str(directory)], check=True)
+
+
+@pytest.fixture(scope="module")
+def avatar_file(tiny_dataset, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("full_disk")
+    loop = LoopConfig(steps=1, images_per_shard=2, checkpoint_every=0, progress=False)
+    train_prior(tiny_dataset, folder / "prior.pt", PriorConfig(model=ModelConfig(**TINY_MODEL), loop=loop))
+    args = ["fit", str(tiny_dataset / SUBJECT), "--prior", str(folder / "prior.pt"), "--out", str(folder / "a.pt")]
+    assert main([*args, "--stage1-steps", "1", "--stage2-steps", "1", "--detail-steps", "0", "--no-lpips"]) == 0
+    return folder / "a.pt"
+
+
+def expect_full(capsys, status: int, path: Path) -> None:
+    """Exit 2 and one line naming ``path``, the reason and the space left."""
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and lines[-1].startswith(f"pghm: error: {path}: no space left on device ("), lines
+    assert lines[-1].endswith(" MB free)") and "Traceback" not in "\n".join(lines)
+
+
+def test_eval_writes_both_outputs_or_neither(tiny_dataset, avatar_file, full, tmp_path, capsys):
+    report, strip = tmp_path / "r.json", full / "s.png"
+    args = ["eval", str(avatar_file), str(tiny_dataset / SUBJECT), "--report", str(report), "--strip", str(strip)]
+    status = main(args)
+    expect_full(capsys, status, strip)
+    assert not report.exists() and not strip.exists()
+    assert [p.name for p in full.iterdir()] == ["filler"] and list(tmp_path.glob(".r.json*")) == []
+
+
+def test_fit_writes_the_avatar_and_its_profile_or_neither(tiny_dataset, avatar_file, full, tmp_path, capsys):
+    prior = avatar_file.with_name("prior.pt")
+    out, profile = tmp_path / "a.pt", full / "p.json"
+    args = ["fit", str(tiny_dataset / SUBJECT), "--prior", str(prior), "--out", str(out), "--profile", str(profile)]
+    status = main([*args, "--stage1-steps", "1", "--stage2-steps", "1", "--detail-steps", "0", "--no-lpips"])
+    expect_full(capsys, status, profile)
+    assert not out.exists() and not profile.exists()
+
+
+def test_an_avatar_on_a_full_disk_is_one_line(tiny_dataset, avatar_file, full, capsys):
+    out = full / "posed.ply"
+    status = main(["export", str(avatar_file), "--pose", "walk", "--frame", "1", "--out", str(out)])
+    expect_full(capsys, status, out)
+    assert not out.exists()
+
+
+@pytest.mark.gl
+def test_a_video_the_encoder_could_not_write_is_refused(avatar_file, full, capsys):
+    out = full / "a.mp4"
+    args = ["render", str(avatar_file), "--motion", "walk", "--frames", "3", "--size", "64x48", "--out", str(out)]
+    status = main(args)
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and lines == [f"pghm: error: {out}: the video encoder failed ({lines[-1].split('(')[-1]}"]
+    assert lines[-1].endswith(" MB free)") and not out.exists() and [p.name for p in full.iterdir()] == ["filler"]
