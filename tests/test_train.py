@@ -558,3 +558,28 @@ def test_refusals_come_before_the_work(tiny_dataset, prior_file, tmp_path, monke
     with pytest.raises(PghmError, match=f"a detail layer needs 2L <= {MAX_RESOLUTION}"):
         fit(tiny_dataset / "subject_001", prior_file, tmp_path / "a.pt", config)
     assert not (tmp_path / "a.pt").exists()
+
+
+def test_a_checkpoint_with_non_finite_values_is_refused_on_resume(tiny_dataset, prior_file, tmp_path, monkeypatch):
+    """A run that diverged before its checkpoint was written must not continue as if it had not."""
+    import pghm.train.loop as loop_module
+    from pghm.errors import PghmError
+    from pghm.io.avatar import load_avatar
+
+    def interrupt(name: str) -> None:
+        raise KeyboardInterrupt
+
+    stages = [LoopConfig(steps=3, images_per_shard=2, checkpoint_every=0, progress=False) for _ in range(2)]
+    config = FitConfig(*stages, lpips=False, detail=replace(stages[1], steps=0))
+    out = tmp_path / "a.pt"
+    monkeypatch.setattr(loop_module, "interrupt_point", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        fit(tiny_dataset / "subject_001", load_avatar(prior_file), out, config)
+    monkeypatch.undo()
+    checkpoint = out.with_name(out.name + ".ckpt")
+    payload = torch.load(checkpoint, weights_only=True)
+    payload["objective"]["latent"].fill_(math.nan)
+    torch.save(payload, checkpoint)
+    with pytest.raises(PghmError, match=r"checkpoint holds non-finite values \(latent"):
+        fit(tiny_dataset / "subject_001", load_avatar(prior_file), out, config, resume=True)
+    assert not out.exists()

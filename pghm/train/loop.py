@@ -255,23 +255,54 @@ class LoopState:
     history: list = field(default_factory=list)
 
 
+def state_record(state: LoopState) -> dict:
+    """A loop state as plain values (a checkpoint's ``state``)."""
+    return {
+        "step": state.step,
+        "lr_scale": state.lr_scale,
+        "skipped_steps": state.skipped_steps,
+        "bad_images": [list(b) for b in state.bad_images],
+        "seconds": state.seconds,
+        "history": state.history,
+    }
+
+
+def state_from_record(raw: dict) -> LoopState:
+    """The loop state of :func:`state_record`; PghmError for one that cannot be (a damaged checkpoint)."""
+    try:
+        state = LoopState(
+            step=int(raw["step"]),
+            lr_scale=float(raw["lr_scale"]),
+            skipped_steps=int(raw["skipped_steps"]),
+            bad_images=[tuple(b) for b in raw["bad_images"]],
+            seconds=float(raw["seconds"]),
+            history=list(raw["history"]),
+        )
+    except (KeyError, TypeError, ValueError) as error:
+        raise PghmError(f"checkpoint has an invalid loop state ({type(error).__name__}: {error})") from None
+    if state.step < 0 or not (math.isfinite(state.lr_scale) and state.lr_scale > 0):
+        raise PghmError(
+            f"checkpoint has an invalid loop state (step {state.step}, learning-rate scale {state.lr_scale})"
+        )
+    return state
+
+
 def save_checkpoint(
-    path: Path, objective: AvatarObjective, optimizer: torch.optim.Optimizer, state: LoopState, extra: dict
+    path: Path,
+    objective: AvatarObjective,
+    optimizer: torch.optim.Optimizer | None,
+    state: LoopState,
+    extra: dict,
 ) -> None:
+    """The run's state to ``path``, atomically: the objective's tensors, the optimizer's (None: a
+    checkpoint between stages, which starts the next one afresh), the loop state and ``extra``."""
     buffer = io.BytesIO()
     torch.save(
         {
             "format": CHECKPOINT_FORMAT,
             "objective": {k: v for k, v in objective.state_dict().items() if not k.startswith("lpips.")},
-            "optimizer": optimizer.state_dict(),
-            "state": {
-                "step": state.step,
-                "lr_scale": state.lr_scale,
-                "skipped_steps": state.skipped_steps,
-                "bad_images": [list(b) for b in state.bad_images],
-                "seconds": state.seconds,
-                "history": state.history,
-            },
+            "optimizer": {} if optimizer is None else optimizer.state_dict(),
+            "state": state_record(state),
             "extra": extra,
         },
         buffer,
@@ -290,39 +321,40 @@ def load_checkpoint(path: Path) -> dict:
     return payload
 
 
+def restore_objective(payload: dict, objective: AvatarObjective) -> None:
+    """Load a checkpoint's parameters into ``objective``; PghmError if they are from another run or
+    not finite (a run that diverged before it was saved must not continue as if it had not)."""
+    try:
+        missing, unexpected = objective.load_state_dict(payload["objective"], strict=False)
+    except (RuntimeError, KeyError, TypeError, ValueError, AttributeError, IndexError) as error:
+        first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise PghmError(
+            f"checkpoint does not match this run (other options or another command?): {first[:200]}"
+        ) from None
+    missing = [k for k in missing if not k.startswith("lpips.")]
+    if missing or unexpected:
+        raise PghmError(f"checkpoint does not match this run (missing {missing[:3]}, unexpected {unexpected[:3]})")
+    tensors = objective.state_dict().items()
+    bad = [name for name, value in tensors if value.is_floating_point() and not all_finite([value])]
+    if bad:
+        raise PghmError(f"checkpoint holds non-finite values ({', '.join(bad[:3])}); run again without --resume")
+
+
 def restore(payload: dict, objective: AvatarObjective, optimizer: torch.optim.Optimizer) -> LoopState:
     """Load a checkpoint's parameters, optimizer and loop state; PghmError if it is from another run.
 
     A checkpoint of another model size, stage or command (resuming with changed options, or
     into the wrong ``--out``) is one line, not torch's size-mismatch traceback.
     """
+    restore_objective(payload, objective)
     try:
-        missing, unexpected = objective.load_state_dict(payload["objective"], strict=False)
-        missing = [k for k in missing if not k.startswith("lpips.")]
-        if missing or unexpected:
-            raise PghmError(f"checkpoint does not match this run (missing {missing[:3]}, unexpected {unexpected[:3]})")
         optimizer.load_state_dict(payload["optimizer"])
-        raw = payload["state"]
-        state = LoopState(
-            step=int(raw["step"]),
-            lr_scale=float(raw["lr_scale"]),
-            skipped_steps=int(raw["skipped_steps"]),
-            bad_images=[tuple(b) for b in raw["bad_images"]],
-            seconds=float(raw["seconds"]),
-            history=list(raw["history"]),
-        )
-    except PghmError:
-        raise
     except (RuntimeError, KeyError, TypeError, ValueError, AttributeError, IndexError) as error:
         first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
         raise PghmError(
             f"checkpoint does not match this run (other options or another command?): {first[:200]}"
         ) from None
-    if state.step < 0 or not (math.isfinite(state.lr_scale) and state.lr_scale > 0):
-        raise PghmError(
-            f"checkpoint has an invalid loop state (step {state.step}, learning-rate scale {state.lr_scale})"
-        )
-    return state
+    return state_from_record(payload.get("state") if isinstance(payload.get("state"), dict) else {})
 
 
 def check_learning_rate(name: str, value: float) -> None:
@@ -395,7 +427,7 @@ def run_stage(
     data: TrainingData,
     geometry_of: Callable[[int], SubjectGeometry],
     config: LoopConfig,
-    checkpoint: Path,
+    checkpoint: Path | None,
     state: LoopState,
     extra: dict,
     description: str,
@@ -404,7 +436,8 @@ def run_stage(
     """Run steps ``state.step`` .. ``config.steps`` - 1 of one stage; returns the final state.
 
     ``trainable`` are the parameters ``optimizer`` steps, ``geometry_of`` an identity's geometry,
-    ``extra`` what the checkpoint records beside the state (the stage, the kind), ``description``
+    ``checkpoint`` where the stage saves its state (None: nowhere; the caller keeps one), ``extra``
+    what the checkpoint records beside the state (the stage, the kind), ``description``
     the progress bar's label. ``budget``: the fit's plan (:mod:`pghm.train.plan`), in this stage's
     phase, which sets the stage's steps instead of ``config.steps`` (asked again after each step)
     and whose time left the bar shows.
@@ -500,13 +533,14 @@ def run_stage(
                 postfix.update(loss=f"{mean['loss']:.4f}", psnr=f"{mean['psnr']:.2f}")
             progress.set_postfix(postfix)
             progress.update(1)
-            if rank == 0 and config.checkpoint_every > 0 and state.step % config.checkpoint_every == 0:
+            periodic = checkpoint is not None and config.checkpoint_every > 0
+            if rank == 0 and periodic and state.step % config.checkpoint_every == 0:
                 state.bad_images = sorted(data.bad)
                 with profile.part(profile.CHECKPOINT):
                     save_checkpoint(checkpoint, objective, optimizer, state, extra)
             interrupt_point("train-step")
     except KeyboardInterrupt:
-        if rank == 0:
+        if rank == 0 and checkpoint is not None:
             state.bad_images = sorted(data.bad)
             save_checkpoint(checkpoint, objective, optimizer, state, extra)
             progress.write(
