@@ -86,7 +86,7 @@ def test_commands_without_options_run_the_library_defaults(monkeypatch, command,
     class Recorded(Exception):
         pass
 
-    def record(*positional, resume, device):
+    def record(*positional, resume, device, **_):
         seen["config"], seen["device"] = positional[-1], device
         raise Recorded
 

@@ -332,11 +332,12 @@ def cmd_fit(args: argparse.Namespace) -> int:
     )
     prior = ModelConfig() if args.prior == "scratch" else args.prior
     with all_or_none() as outputs:  # the avatar and its profile, both or neither
+        run = dict(resume=args.resume, device=device, outputs=outputs)
         if args.profile is None:
-            avatar = fit(args.subject_dir, prior, args.out, config, args.resume, device, outputs)
+            avatar = fit(args.subject_dir, prior, args.out, config, **run)
         else:
             with profiled() as timing:
-                avatar = fit(args.subject_dir, prior, args.out, config, args.resume, device, outputs)
+                avatar = fit(args.subject_dir, prior, args.out, config, **run)
             print(timing.table(), file=sys.stderr)
             outputs.write_bytes(args.profile, json.dumps(timing.record(), indent=2).encode())
     print(f"wrote {args.out}: {avatar.metadata['steps']} steps, {avatar.metadata['seconds']} s")
