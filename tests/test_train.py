@@ -536,7 +536,9 @@ def test_a_fit_with_a_budget_spends_it_and_records_its_plan(tiny_dataset, prior_
     steps = metadata["steps"]
     # Both scaled up; stage 1 is sized before stage 2's own cost is measured, so their ratio drifts.
     assert steps["stage1"] > 3 and steps["stage2"] > 6
-    assert list(metadata["plan"]) == ["stage 1", "early settling", "stage 2", "pose settling", "held-out poses", "detail"]
+    from pghm.train.plan import PHASES
+
+    assert list(metadata["plan"]) == list(PHASES)
     assert metadata["plan"]["stage 2"]["steps"] == steps["stage2"] and metadata["plan"]["detail"]["steps"] == 0
 
 
@@ -583,3 +585,50 @@ def test_a_checkpoint_with_non_finite_values_is_refused_on_resume(tiny_dataset, 
     with pytest.raises(PghmError, match=r"checkpoint holds non-finite values \(latent"):
         fit(tiny_dataset / "subject_001", load_avatar(prior_file), out, config, resume=True)
     assert not out.exists()
+
+
+@pytest.mark.parametrize("phase", ["early settling", "held-out poses", "detail"])
+def test_a_fit_interrupted_after_a_stage_resumes_to_the_same_avatar(
+    tiny_dataset, prior_file, tmp_path, monkeypatch, phase
+):
+    """Ctrl-C part-way through a phase after a stage leaves the checkpoint of that stage's end (the
+    detail stage's own never replaces it), and --resume continues from there to the avatar an
+    uninterrupted fit gives, bit for bit: weights, latent and pose track."""
+    import pghm.train.detail as detail_module
+    import pghm.train.fit as fit_module
+
+    stages = [LoopConfig(steps=2, images_per_shard=2, checkpoint_every=0, progress=False) for _ in range(2)]
+    config = FitConfig(
+        *stages, lpips=False, early_track_steps=1, held_out_steps=1, detail_validation=0,
+        detail=replace(stages[1], steps=2),
+    )
+    subject = tiny_dataset / "subject_000"
+    fit(subject, prior_file, tmp_path / "straight.pt", config)
+
+    def interrupted(real):
+        def run(*args, **kwargs):
+            real(*args, **kwargs)  # the phase's work done, and its state changed in memory
+            raise KeyboardInterrupt
+
+        return run
+
+    module, name = {
+        "early settling": (fit_module, "settle"),
+        "held-out poses": (fit_module, "align_held_out"),
+        "detail": (detail_module, "run_stage"),
+    }[phase]
+    out = tmp_path / "resumed.pt"
+    with monkeypatch.context() as patch:
+        patch.setattr(module, name, interrupted(getattr(module, name)))
+        with pytest.raises(KeyboardInterrupt):
+            fit(subject, prior_file, out, config)
+    checkpoint = torch.load(out.with_name(out.name + ".ckpt"), weights_only=True)
+    assert checkpoint["extra"] == {"stage": 1 if phase == "early settling" else 2} and not out.exists()
+    fit(subject, prior_file, out, config, resume=True)
+    straight, resumed = (torch.load(tmp_path / f, weights_only=True) for f in ("straight.pt", "resumed.pt"))
+    assert straight["weights"].keys() == resumed["weights"].keys()
+    assert all(torch.equal(straight["weights"][k], resumed["weights"][k]) for k in straight["weights"])
+    assert torch.equal(straight["latent"], resumed["latent"])
+    for key, value in straight["pose_track"].items():
+        other = resumed["pose_track"][key]
+        assert value == other if isinstance(value, str) else torch.equal(value, other)

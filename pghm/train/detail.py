@@ -32,7 +32,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import replace
-from pathlib import Path
 
 import torch
 from torch import Tensor, nn
@@ -85,7 +84,6 @@ def train_detail(
     config: LoopConfig,
     lr: float,
     lpips: nn.Module | None,
-    checkpoint: Path,
     body_model_path: str | None = None,
     validate=None,
     budget: Budget | None = None,
@@ -119,7 +117,7 @@ def train_detail(
             data=data,
             geometry_of=geometries,
             config=replace(config, steps=end),
-            checkpoint=checkpoint,
+            checkpoint=None,  # stage 2's end stays the fit's checkpoint: --resume reruns this stage (a minute)
             state=state,
             extra={"stage": 3},
             description="fit: detail",
@@ -183,7 +181,6 @@ def validated_detail(
     config: LoopConfig,
     lr: float,
     lpips: nn.Module | None,
-    checkpoint: Path,
     body_model_path: str | None = None,
     budget: Budget | None = None,
 ) -> tuple[PGHM | None, LoopState, dict]:
@@ -192,7 +189,7 @@ def validated_detail(
     the model with its best layer (None when dropped), the stage's state and the decision's record."""
     if not held:
         model, state = train_detail(
-            avatar.model, avatar.latent, corrections, data, config, lr, lpips, checkpoint, body_model_path, None, budget
+            avatar.model, avatar.latent, corrections, data, config, lr, lpips, body_model_path, None, budget
         )
         return model, state, {"kept": True}
     without = squared_error(avatar, data, held, corrections)
@@ -200,8 +197,7 @@ def validated_detail(
     validation = DetailValidation(score, without, len(held))
     trained_on = data.restricted(sorted(set(int(i) for i in data.images[0]) - set(held)))
     model, state = train_detail(
-        avatar.model, avatar.latent, corrections, trained_on, config, lr, lpips, checkpoint, body_model_path,
-        validation, budget,
+        avatar.model, avatar.latent, corrections, trained_on, config, lr, lpips, body_model_path, validation, budget
     )
     record = validation.record()
     if not record["kept"]:

@@ -21,9 +21,12 @@ out of it closer than the avatar without it (:mod:`pghm.train.detail`).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
+import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -61,6 +64,7 @@ from pghm.train.loop import (
     load_checkpoint,
     restore,
     run_stage,
+    save_checkpoint,
 )
 from pghm.train.losses import LossWeights
 from pghm.train.optim import LazyAdam
@@ -330,7 +334,6 @@ def add_detail(
     corrections: PoseCorrections | None,
     config: FitConfig,
     lpips: nn.Module | None,
-    checkpoint: Path,
     budget: Budget | None = None,
 ) -> dict:
     """Train a detail layer on the finished ``avatar`` and give it to the avatar if it validates
@@ -339,7 +342,7 @@ def add_detail(
     held = validation_images(images, config.detail_validation)
     detail = config.detail if budget is None else replace(config.detail, steps=budget.phases[DETAIL].steps)
     model, state, record = validated_detail(
-        avatar, data, held, corrections, detail, config.detail_lr, lpips, checkpoint, config.body_model_path, budget
+        avatar, data, held, corrections, detail, config.detail_lr, lpips, config.body_model_path, budget
     )
     avatar.metadata["steps"]["detail"] = state.step
     record["seconds"] = round(state.seconds, 1)
@@ -569,6 +572,11 @@ def _stage(run: FitRun, budget: Budget, number: int) -> dict:
         budget=budget,
     )
     run.states[name] = state
+    every = config.checkpoint_every
+    if state.step and not (every and state.step % every == 0):
+        # The stage's end, unless its last step has just saved it: a fit interrupted in a later
+        # phase resumes from here, the stage done, and runs the phases after it as they would have run.
+        save_checkpoint(run.checkpoint, run.objective, optimizer, state, {"stage": number})
     return {"psnr": state.history[-1]["psnr"]} if state.history else {}
 
 
@@ -637,7 +645,7 @@ def _held_out(run: FitRun, budget: Budget) -> dict:
 
 def _detail(run: FitRun, budget: Budget) -> dict:
     budget.start(DETAIL)
-    record = add_detail(run.avatar, run.data, run.corrections, run.config, run.lpips, run.checkpoint, budget)
+    record = add_detail(run.avatar, run.data, run.corrections, run.config, run.lpips, budget)
     return {"kept": record["kept"]}
 
 
@@ -685,7 +693,7 @@ def fit(
                 why = detail_refusal(run.config, run.data) or "no time left in the budget"
                 run.avatar.metadata["detail"] = {"kept": False, "why": why}
         else:
-            with profile.phase(name):
+            with profile.phase(name), _interrupted_after_a_stage(name, run.checkpoint):
                 budget.finish(phase())
             if name == STAGE1:
                 log.info("fit: stage 1 done; the rest of the plan:\n%s", describe(budget.remaining(), budget.costs))
@@ -699,6 +707,18 @@ def fit(
     else:
         outputs.after.append(forget_checkpoint)
     return run.avatar
+
+
+@contextlib.contextmanager
+def _interrupted_after_a_stage(name: str, checkpoint: Path) -> Iterator[None]:
+    """Ctrl-C or SIGTERM in a phase after a stage: say where the fit resumes from (the last stage's
+    end, which :func:`_stage` saved), as the stages' own interruptions do."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        if name not in (STAGE1, STAGE2) and checkpoint.is_file():
+            print(f"interrupted in {name}: checkpoint saved to {checkpoint}; continue with --resume", file=sys.stderr)
+        raise
 
 
 def record_plan(avatar: Avatar, budget: Budget) -> None:
