@@ -573,7 +573,7 @@ def _stage(run: FitRun, budget: Budget, number: int) -> dict:
     )
     run.states[name] = state
     every = config.checkpoint_every
-    if state.step and not (every and state.step % every == 0):
+    if state.history and not (every and state.step % every == 0):  # history: a step saw an image
         # The stage's end, unless its last step has just saved it: a fit interrupted in a later
         # phase resumes from here, the stage done, and runs the phases after it as they would have run.
         save_checkpoint(run.checkpoint, run.objective, optimizer, state, {"stage": number})
