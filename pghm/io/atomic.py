@@ -74,11 +74,16 @@ def free_megabytes(path: Path) -> float | None:
     return status.f_bavail * status.f_frsize / 2**20
 
 
+def free_space_note(path: Path) -> str:
+    """`` (12 MB free)`` of the filesystem ``path`` would be written to, or nothing when unknown."""
+    free = free_megabytes(path)
+    return f" ({free:.0f} MB free)" if free is not None else ""
+
+
 def write_failure(path: Path, error: OSError) -> PghmError:
     """The one line for a failed write of ``path``: ``path: no space left on device (12 MB free)``."""
     reason = (error.strerror or str(error)).lower() if error.errno else str(error)
-    free = free_megabytes(path) if error.errno in SPACE_ERRORS else None
-    return PghmError(f"{path}: {reason}" + (f" ({free:.0f} MB free)" if free is not None else ""))
+    return PghmError(f"{path}: {reason}" + (free_space_note(path) if error.errno in SPACE_ERRORS else ""))
 
 
 @contextlib.contextmanager

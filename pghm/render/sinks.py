@@ -17,7 +17,7 @@ from typing import Literal, Protocol
 import numpy as np
 
 from pghm.errors import PghmError
-from pghm.io.atomic import PendingFile, atomic_write_bytes, free_megabytes
+from pghm.io.atomic import PendingFile, atomic_write_bytes, free_space_note
 from pghm.io.outputs import StagedFolder, check_output
 
 PNG_PATTERN = "frame_{:05d}.png"
@@ -102,9 +102,7 @@ class Mp4Sink:
 
     def encoder_failure(self) -> PghmError:
         """The one line for an encoder that stopped or wrote nothing (a full disk, most often)."""
-        free = free_megabytes(self.path)
-        space = f" ({free:.0f} MB free)" if free is not None else ""
-        return PghmError(f"{self.path}: the video encoder failed{space}")
+        return PghmError(f"{self.path}: the video encoder failed{free_space_note(self.path)}")
 
     def close(self) -> None:
         """Finish the video and move it to ``path``."""
