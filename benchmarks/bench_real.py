@@ -33,6 +33,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -124,7 +125,11 @@ def evaluate(avatar: Path, subject: Path, work: Path, name: str | None) -> dict:
     return figures
 
 
-def bench_video(video: Path, name: str, work: Path, args: argparse.Namespace) -> dict:
+def bench_video(
+    video: Path, name: str, work: Path, args: argparse.Namespace, save: Callable[[dict], None]
+) -> dict:
+    """The row of one video; ``save(row)`` is called after the default fit and after each budget
+    fit, so a long sweep that is cut off keeps what it measured."""
     work.mkdir(parents=True, exist_ok=True)
     subject, avatar = work / "subject", work / "avatar.pt"
     row = {"video": name}
@@ -145,6 +150,7 @@ def bench_video(video: Path, name: str, work: Path, args: argparse.Namespace) ->
     row["coverage"] = coverage_swaps(scored_frames(fitted, subject, steps=0, fit_poses=fit_poses))
     row["coverage"]["poses"] = "fit" if fit_poses else "stored"
     row["budgets"] = []
+    save(row)
     for minutes in args.budgets:
         out = work / f"avatar_{minutes:g}min.pt"
         timing = run([*fit(out), "--minutes", f"{minutes:g}"], work / f"fit_{minutes:g}min.log")
@@ -153,6 +159,7 @@ def bench_video(video: Path, name: str, work: Path, args: argparse.Namespace) ->
         figures = evaluate(out, subject, budget_work, None)
         steps = load_avatar(out).metadata["steps"]
         row["budgets"].append({"minutes": minutes, "fit": timing, "steps": steps, "eval": figures})
+        save(row)
     return row
 
 
@@ -195,9 +202,13 @@ def main() -> int:
     videos = args.videos or sorted(shared.glob("*.mp4"))
     work = args.keep or Path(tempfile.mkdtemp(prefix="bench_real_"))
     rows = []
+
+    def save(row: dict) -> None:
+        write_json(args.results, {"fit_options": args.fit_option, "videos": [*rows, row], "partial": True})
+
     try:
         for video in videos:
-            rows.append(bench_video(video.resolve(), video.stem, work / video.stem, args))
+            rows.append(bench_video(video.resolve(), video.stem, work / video.stem, args, save))
         synthetic = [("turning", turning_video, args.turning), ("exercise", exercise_video, args.exercise)]
         for kind, make, count in synthetic:
             for seed in range(count):
@@ -205,7 +216,7 @@ def main() -> int:
                 video = work / f"{name}.mp4"
                 if not video.is_file():
                     make(video, args.frames, seed)
-                rows.append(bench_video(video, name, work / name, args))
+                rows.append(bench_video(video, name, work / name, args, save))
     finally:
         if args.keep is None:
             shutil.rmtree(work, ignore_errors=True)
