@@ -134,7 +134,7 @@ def test_render_and_export_with_the_cpu_given(tmp_path):
     from dataclasses import replace
     from pathlib import Path
 
-    from pghm.io.export import export_posed_ply
+    from pghm.io.export import export_posed
     from pghm.render import RenderJob, render_video
 
     avatar = Path(__file__).resolve().parent.parent / "assets" / "avatar.pt"
@@ -142,8 +142,8 @@ def test_render_and_export_with_the_cpu_given(tmp_path):
     render_video(job, log=lambda line: None)
     render_video(replace(job, out=tmp_path / "cpu.png", device="cpu"), log=lambda line: None)
     assert (tmp_path / "default.png").read_bytes() == (tmp_path / "cpu.png").read_bytes()
-    export_posed_ply(str(avatar), "rest", 0, str(tmp_path / "default.ply"))
-    export_posed_ply(str(avatar), "rest", 0, str(tmp_path / "cpu.ply"), device=CPU)
+    export_posed(str(avatar), "rest", 0, str(tmp_path / "default.ply"))
+    export_posed(str(avatar), "rest", 0, str(tmp_path / "cpu.ply"), device=CPU)
     assert (tmp_path / "default.ply").read_bytes() == (tmp_path / "cpu.ply").read_bytes()
 
 

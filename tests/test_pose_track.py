@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -157,6 +158,7 @@ def test_the_pose_learning_rate_and_the_track_settling_follow_the_stated_noise(s
         early_track_steps,
         held_out_steps,
         pose_learning_rate,
+        resolved,
         track_steps,
     )
 
@@ -173,12 +175,11 @@ def test_the_pose_learning_rate_and_the_track_settling_follow_the_stated_noise(s
     stated = {"rotation_std_deg": 8.0, "translation_std_m": 0.01}
     (subject / "meta.json").write_text(json.dumps({**meta, "pose_noise": stated}))
     stages = [LoopConfig(steps=n, images_per_shard=2, checkpoint_every=0) for n in (1, 1)]
-    avatar = fit(subject, ModelConfig(**TINY_MODEL), tmp_path / "a.pt", FitConfig(*stages, lpips=False))
-    assert avatar.metadata["config"]["pose_lr"] == pytest.approx(POSE_LR / 4)
-    assert avatar.metadata["config"]["early_track_steps"] == EARLY_TRACK_STEPS
-    assert avatar.metadata["config"]["track_steps"] == 0
-    unsettled_config = FitConfig(*stages, lpips=False, early_track_steps=0)
-    unsettled = fit(subject, ModelConfig(**TINY_MODEL), tmp_path / "c.pt", unsettled_config)
-    assert unsettled.metadata["config"]["track_steps"] == TRACK_STEPS
-    explicit = FitConfig(*stages, lpips=False, pose_lr=1e-3)
-    assert fit(subject, ModelConfig(**TINY_MODEL), tmp_path / "b.pt", explicit).metadata["config"]["pose_lr"] == 1e-3
+    config = FitConfig(*stages, lpips=False, detail=LoopConfig(steps=0))
+    data = TrainingData(subject)
+    assert resolved(replace(config, early_track_steps=0), data).track_steps == TRACK_STEPS
+    assert resolved(replace(config, pose_lr=1e-3), data).pose_lr == 1e-3
+    # The fit records what the resolution gives.
+    recorded = fit(subject, ModelConfig(**TINY_MODEL), tmp_path / "a.pt", config).metadata["config"]
+    assert recorded["pose_lr"] == pytest.approx(POSE_LR / 4)
+    assert recorded["early_track_steps"] == EARLY_TRACK_STEPS and recorded["track_steps"] == 0

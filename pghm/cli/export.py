@@ -1,6 +1,6 @@
-"""``pghm export``: posed Gaussians of an avatar as a standard 3DGS .ply.
+"""``pghm export``: posed Gaussians of an avatar as a standard 3DGS .ply or a .spz.
 
-pghm export avatar.pt --pose walk --frame 10 --out posed.ply [--view X,Y,Z]
+pghm export avatar.pt --pose walk --frame 10 --out posed.ply|posed.spz [--view X,Y,Z]
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import argparse
 
 from pghm.cli.options import INDEX, Integer, add_device_option
 from pghm.errors import PghmError
-from pghm.io.export import FRONT_DISTANCE, export_posed_ply, parse_vector
+from pghm.io.export import FRONT_DISTANCE, POSED_FORMATS, export_posed, parse_vector
 from pghm.io.outputs import check_output
 from pghm.motion.motion import MAX_FRAMES
 
@@ -24,7 +24,7 @@ def _point(text: str) -> str:
 
 
 def register(subparsers) -> None:
-    parser = subparsers.add_parser("export", help="write posed Gaussians as a 3DGS .ply")
+    parser = subparsers.add_parser("export", help="write posed Gaussians as a 3DGS .ply or a .spz")
     parser.add_argument("avatar", help="avatar.pt (or prior.pt with --identity)")
     parser.add_argument("--pose", default="rest", help="a motion file (.npz, .bvh) or a name: rest, walk, squat, ...")
     parser.add_argument(
@@ -33,7 +33,9 @@ def register(subparsers) -> None:
         default=0,
         help="frame of the motion (default %(default)s)",
     )
-    parser.add_argument("--out", required=True, help="the .ply to write")
+    parser.add_argument(
+        "--out", required=True, help="the .ply or .spz to write (Spark, SuperSplat and Babylon.js read .spz)"
+    )
     parser.add_argument(
         "--view",
         type=_point,
@@ -50,9 +52,9 @@ def register(subparsers) -> None:
 def cmd_export(args: argparse.Namespace) -> int:
     from pghm.device import resolve_device
 
-    check_output(args.out, inputs=[args.avatar, args.pose, args.body_model_path])
+    check_output(args.out, inputs=[args.avatar, args.pose, args.body_model_path], suffixes=POSED_FORMATS)
     device = resolve_device(args.device)
-    count = export_posed_ply(
+    count = export_posed(
         args.avatar, args.pose, args.frame, args.out, args.view, args.identity, args.body_model_path, device
     )
     print(f"wrote {args.out}: {count} Gaussians")

@@ -1,4 +1,5 @@
-"""Export an avatar's posed Gaussians as a standard 3DGS .ply (the layout is in :mod:`pghm.io.ply`)."""
+"""Export an avatar's posed Gaussians as a standard 3DGS .ply or a .spz (the layouts are in
+:mod:`pghm.io.ply` and :mod:`pghm.io.spz`; the file's suffix chooses)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,8 @@ import torch
 from pghm.errors import PghmError
 from pghm.motion.motion import MAX_TRANSLATION
 
+POSED_FORMATS = (".ply", ".spz")
+"""The suffixes of the posed-frame files :func:`export_posed` writes."""
 FRONT_DISTANCE = 3.0
 """Default baking view: this many metres in front of the posed root (+z, the body's front)."""
 
@@ -26,7 +29,7 @@ def parse_vector(text: str) -> torch.Tensor:
     return torch.tensor(values)
 
 
-def export_posed_ply(
+def export_posed(
     avatar_path: str,
     pose_source: str,
     frame: int,
@@ -36,7 +39,8 @@ def export_posed_ply(
     body_model_path: str | None = None,
     device: torch.device | str = "cpu",
 ) -> int:
-    """Write the dynamic Gaussians of ``avatar_path`` in frame ``frame`` of ``pose_source``.
+    """Write the dynamic Gaussians of ``avatar_path`` in frame ``frame`` of ``pose_source`` to
+``out``, a .ply or a .spz by its suffix (:data:`POSED_FORMATS`).
 
     The view-dependent colour is baked for a camera centred at ``view`` ("X,Y,Z"; default
     FRONT_DISTANCE in front of the posed root). The network runs on ``device``. Returns the
@@ -47,6 +51,7 @@ def export_posed_ply(
     from pghm.body import load_body
     from pghm.io.avatar import avatar_geometry, load_avatar
     from pghm.io.ply import write_ply
+    from pghm.io.spz import write_spz
     from pghm.model.evaluator import CachedEvaluator
     from pghm.motion.open_motion import open_motion
 
@@ -65,5 +70,6 @@ def export_posed_ply(
     else:
         centre = move(parse_vector(view), avatar.device)
     gaussians = move(evaluator.evaluate(avatar.identity_map(identity), pose, centre).dynamic, torch.device("cpu"))
-    write_ply(out, gaussians.means[0], gaussians.scales[0], gaussians.colors[0], gaussians.opacities[0])
+    write = write_spz if out.lower().endswith(".spz") else write_ply
+    write(out, gaussians.means[0], gaussians.scales[0], gaussians.colors[0], gaussians.opacities[0])
     return gaussians.num_gaussians
