@@ -10,6 +10,7 @@ so an avatar trained on a GPU opens anywhere.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import TypeVar
 
 import torch
@@ -61,3 +62,11 @@ def move(value: T, device: torch.device) -> T:
     if all(moved[name] is getattr(value, name) for name in fields):
         return value
     return dataclasses.replace(value, **moved)
+
+
+@functools.lru_cache(maxsize=256)
+def constant(values: tuple[float, ...] | tuple[int, ...], dtype: torch.dtype, device: torch.device) -> Tensor:
+    """The tensor of ``values`` on ``device``, made there once per (values, dtype, device) and shared:
+    a constant a step uses each time (a background colour, an index table) without a copy from
+    the host each time, which on a CUDA device waits for the device. Read it, never write into it."""
+    return torch.tensor(values, dtype=dtype, device=device)

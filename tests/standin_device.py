@@ -14,6 +14,12 @@ values (as a CUDA tensor read back with ``map_location="cpu"`` gives them).
 
 gsplat's CUDA kernels are stood in for by :func:`fake_gsplat_rasterization`, which demands every
 tensor argument on the device, renders with pghm's CPU splatter and returns device tensors.
+
+Inside :func:`counting_syncs`, every point where the host would wait for a CUDA device is recorded
+(:data:`SYNC_OPS`): a value read to the host (``.item()``, ``bool()``, ``.cpu()``, ``.tolist()``),
+an op whose output size depends on the values (``nonzero``, a boolean mask), and a copy from
+pageable CPU memory to the device (torch waits for it to finish); the stand-in's gsplat is not
+counted (the real one's kernels are launched, not waited for, apart from its own sizing).
 """
 
 from __future__ import annotations
@@ -39,6 +45,40 @@ _SCALAR_VALUE_OPS = ("fill", "fill_", "masked_fill", "masked_fill_")
 
 class MixedDevices(RuntimeError):
     """A CPU tensor reached an op computing on the (stand-in) CUDA device."""
+
+
+SYNC_OPS = ("_local_scalar_dense", "nonzero", "masked_select", "_unique2", "unique_dim", "unique_consecutive")
+"""aten ops on a device tensor that make the host wait for the device: a value read to the host, or
+an output whose size depends on the values."""
+_syncs: list[str] | None = None
+"""What :func:`counting_syncs` has recorded, or None when it is not counting."""
+
+
+def _record_sync(what: str) -> None:
+    if _syncs is not None:
+        _syncs.append(what)
+
+
+@contextlib.contextmanager
+def counting_syncs() -> Iterator[list[str]]:
+    """Record in the yielded list, one entry per wait, where the block makes the host wait for the
+    stand-in device (module docstring)."""
+    global _syncs
+    saved, _syncs = _syncs, []
+    try:
+        yield _syncs
+    finally:
+        _syncs = saved
+
+
+@contextlib.contextmanager
+def _not_counted() -> Iterator[None]:
+    global _syncs
+    saved, _syncs = _syncs, None
+    try:
+        yield
+    finally:
+        _syncs = saved
 
 
 def _elem(value):
@@ -120,6 +160,7 @@ class OnDevice(torch.Tensor):
         if func in (torch.Tensor.numpy, torch.Tensor.__array__):
             raise TypeError("can't convert cuda:0 device type tensor to numpy. Use Tensor.cpu() first.")
         if func is torch.Tensor.tolist:
+            _record_sync("tolist")
             return args[0].elem.tolist()
         if func == torch.Tensor.data.__set__ and isinstance(args[1], OnDevice):
             args[0].elem = args[1].elem  # ``p.data = x`` swaps the wrapper's metadata, not its values
@@ -130,14 +171,26 @@ class OnDevice(torch.Tensor):
     def __torch_dispatch__(cls, func, types, args=(), kwargs=None):
         kwargs = kwargs or {}
         _check(func, args, kwargs)
+        name = func.overloadpacket.__name__
+        if name in SYNC_OPS or (name == "index" and any(_is_mask(i) for i in args[1] if i is not None)):
+            _record_sync(name)
         if func is torch.ops.aten._to_copy.default and kwargs.get("device") == torch.device("cpu"):
+            _record_sync("to the host")
             return func(*tree_map(_elem, args), **tree_map(_elem, kwargs))
+        if name == "copy_" and not isinstance(args[0], OnDevice):
+            _record_sync("copy to the host")
+        elif name == "copy_" and not isinstance(args[1], OnDevice):
+            _record_sync("copy from the host")
         if _is_standin(kwargs.get(_FACTORY_KEYWORD)):
             kwargs = {**kwargs, _FACTORY_KEYWORD: torch.device("cpu")}
         out = func(*tree_map(_elem, args), **tree_map(_elem, kwargs))
         if func.overloadpacket.__name__.endswith("_") and args and isinstance(args[0], OnDevice):
             return args[0]  # in place: the wrapper is the result, as torch returns self
         return tree_map(lambda x: OnDevice(x) if type(x) is torch.Tensor else x, out)
+
+
+def _is_mask(index) -> bool:
+    return isinstance(index, torch.Tensor) and index.dtype == torch.bool
 
 
 def _as_meta(device):
@@ -186,6 +239,8 @@ class _MetaFactories(TorchDispatchMode):
             return func(*args, **kwargs)
         if func is torch.ops.aten._to_copy.default and isinstance(args[0], OnDevice):
             return func(*args, **kwargs)
+        if func is torch.ops.aten._to_copy.default:
+            _record_sync("copy from the host")  # pageable memory: torch waits for the copy
         out = func(*args, **{**kwargs, _FACTORY_KEYWORD: torch.device("cpu")})
         return tree_map(lambda x: OnDevice(x) if type(x) is torch.Tensor else x, out)
 
@@ -195,25 +250,57 @@ def fake_gsplat_rasterization(**arguments):
     by pghm's CPU splatter, for the arguments :mod:`pghm.splat.gsplat_backend` passes (one camera
     per image, one background for all); MixedDevices unless every tensor argument is on the
     device, as gsplat's kernels need."""
-    from pghm.splat import Camera, render
-
     for name, value in arguments.items():
         if isinstance(value, torch.Tensor) and not isinstance(value, OnDevice):
             raise MixedDevices(f"gsplat.rasterization: '{name}' is a CPU tensor")
-    on_cpu = {k: v.cpu() if isinstance(v, torch.Tensor) else v for k, v in arguments.items()}
-    camera = Camera.from_matrices(
-        on_cpu["Ks"][:, 0], on_cpu["viewmats"][:, 0], width=on_cpu["width"], height=on_cpu["height"]
-    )
-    drawn = render(
-        on_cpu["means"],
-        on_cpu["scales"][..., 0],
-        on_cpu["colors"],
-        on_cpu["opacities"],
-        camera,
-        background=on_cpu["backgrounds"][0, 0].detach(),
-    )
-    images = torch.cat([drawn.rgb, drawn.depth[..., None]], -1)[:, None]
-    return images.cuda(), drawn.alpha[:, None, ..., None].cuda(), {}
+    tensors = [arguments[name] for name in _DIFFERENTIABLE]
+    images, alphas = _FakeSplat.apply({k: v for k, v in arguments.items() if k not in _DIFFERENTIABLE}, *tensors)
+    return images, alphas, {}
+
+
+_DIFFERENTIABLE = ("means", "scales", "colors", "opacities", "viewmats")
+"""The arguments gradients flow to (the Gaussians and, for pose refinement, the cameras)."""
+
+
+class _FakeSplat(torch.autograd.Function):
+    """The CPU splatter between device tensors, its copies to and from the CPU in both passes
+    uncounted: they stand in for kernels on the device, which read nothing to the host."""
+
+    @staticmethod
+    def forward(ctx, arguments: dict, *tensors: torch.Tensor):
+        from pghm.splat import Camera, render
+
+        with _not_counted(), torch.enable_grad():
+            leaves = [t.detach().cpu().requires_grad_(t.requires_grad) for t in tensors]
+            given = {**{k: v.cpu() if isinstance(v, torch.Tensor) else v for k, v in arguments.items()}}
+            given.update(zip(_DIFFERENTIABLE, leaves))
+            camera = Camera.from_matrices(
+                given["Ks"][:, 0], given["viewmats"][:, 0], width=given["width"], height=given["height"]
+            )
+            drawn = render(
+                given["means"],
+                given["scales"][..., 0],
+                given["colors"],
+                given["opacities"],
+                camera,
+                background=given["backgrounds"][0, 0].detach(),
+            )
+            images = torch.cat([drawn.rgb, drawn.depth[..., None]], -1)[:, None]
+            alphas = drawn.alpha[:, None, ..., None]
+            ctx.graph = (leaves, (images, alphas))
+            return images.detach().cuda(), alphas.detach().cuda()
+
+    @staticmethod
+    def backward(ctx, grad_images: torch.Tensor, grad_alphas: torch.Tensor):
+        leaves, outputs = ctx.graph
+        wanted = [leaf for leaf in leaves if leaf.requires_grad]
+        with _not_counted():
+            grads = iter(
+                torch.autograd.grad(outputs, wanted, (grad_images.cpu(), grad_alphas.cpu()), allow_unused=True)
+            )
+            moved = [next(grads) if leaf.requires_grad else None for leaf in leaves]
+            # The engine may run this on its own thread, outside the stand-in's modes: wrapped by hand.
+            return (None, *(OnDevice(g) if g is not None else None for g in moved))
 
 
 @contextlib.contextmanager

@@ -180,6 +180,44 @@ def test_fit_on_the_device_is_the_cpus(avatar_files):
     assert same_tensors(avatar_files["cuda"], avatar_files["cpu"])
 
 
+def test_a_fit_step_waits_for_the_device_at_most_twice(tiny_dataset, prior_files, tmp_path, monkeypatch):
+    """Once its images are on the device, a stage-2 step (pose corrections, crops' areas, random
+    backgrounds, LPIPS) makes the host wait for the device twice: the guard's one read of whether
+    the loss and every gradient are finite, and the read of the step's terms with the update's
+    finiteness. A read per parameter, per term or per copy of a sample would show here."""
+    from standin_device import counting_syncs
+
+    from pghm.train.data import TrainingData
+
+    marks, loaded = [], []
+    load_group = TrainingData.load_group
+
+    def logged_group(self, identity, images):
+        loaded.append((identity, tuple(images)))
+        return load_group(self, identity, images)
+
+    monkeypatch.setattr(TrainingData, "load_group", logged_group)
+    config = FitConfig(
+        stage1=steps(1),
+        stage2=steps(12),
+        early_track_steps=0,
+        track_steps=0,
+        held_out_steps=0,
+        detail=LoopConfig(steps=0),
+    )
+    with standin_cuda(), counting_syncs() as syncs:
+        monkeypatch.setattr(loop_module, "interrupt_point", lambda name: marks.append((len(syncs), len(loaded))))
+        fit(tiny_dataset / SUBJECT, prior_files["cuda"], tmp_path / "a.pt", config, device="cuda")
+    seen, counted = set(), 0
+    for (before, first), (after, last) in zip(marks, marks[1:]):
+        images = {(identity, image) for identity, group in loaded[first:last] for image in group}
+        if images <= seen:  # every image of the step already on the device
+            assert after - before <= 2, syncs[before:after]
+            counted += 1
+        seen |= images
+    assert counted >= 3
+
+
 def test_fit_resumed_on_the_device_is_the_cpus_uninterrupted(tiny_dataset, prior_files, tmp_path, monkeypatch):
     """A fit interrupted in stage 2 (its checkpoint written from the device) resumes on the device
     where it stopped: the CPU's uninterrupted fit. At a finer UV resolution, the pose track

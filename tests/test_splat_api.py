@@ -53,6 +53,27 @@ def test_from_matrices_round_trip_and_intrinsic_matrix():
     torch.testing.assert_close(camera.centre, torch.tensor([-0.1, 0.2, -0.3]))
 
 
+def test_a_stack_of_cameras_is_the_batch_their_matrices_make():
+    """Camera.stack (no check of values already checked) against from_matrices of the stacked K and
+    world_to_camera: the same batch, value for value; a stack of cameras of two sizes is refused."""
+    cameras = [
+        Camera.look_at(eye=(0.3 * i, 0.2, 3.0), target=(0.0, 0.0, 0.0), fov_y_degrees=40 + 5 * i, width=64, height=48)
+        for i in range(3)
+    ]
+    stacked = Camera.stack(cameras)
+    made = Camera.from_matrices(
+        torch.stack([c.K for c in cameras]).float(), torch.stack([c.world_to_camera for c in cameras]).float(), 64, 48
+    )
+    assert stacked.batch_size == 3 and (stacked.width, stacked.height) == (64, 48)
+    assert torch.equal(stacked.intrinsics(), made.intrinsics())
+    assert torch.equal(stacked.world_to_camera, made.world_to_camera)
+    gaussians = tiny_gaussians()
+    assert torch.equal(render(*gaussians, stacked).rgb, render(*gaussians, made).rgb)
+    other = Camera.look_at(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), width=32, height=48)
+    with pytest.raises(PghmError, match="one image size"):
+        Camera.stack([cameras[0], other])
+
+
 @pytest.mark.parametrize(
     "arguments, message",
     [

@@ -25,6 +25,7 @@ import torch
 from torch import Tensor
 
 from pghm.body.pose import BodyPose
+from pghm.device import constant
 
 
 def kinematic_levels(parents: list[int], device: torch.device | None = None) -> list[Tensor]:
@@ -74,7 +75,7 @@ def forward_kinematics(
     local_trans = local_trans + torch.nn.functional.pad(translation[:, None], (0, 0, 0, num_bones - 1))
 
     # Rotation Q and translation a of every A_j, filled one depth level at a time.
-    parent_index = torch.tensor([max(p, 0) for p in parents], dtype=torch.long, device=rotmats.device)
+    parent_index = constant(tuple(max(p, 0) for p in parents), torch.long, rotmats.device)
     root = levels[0]
     rot = torch.zeros_like(rotmats).index_copy(1, root, rotmats[:, root])
     trans = torch.zeros_like(joints).index_copy(1, root, local_trans[:, root])

@@ -41,7 +41,9 @@ class RenderOutput:
     depth: Tensor
 
 
-def _check_gaussians(means: Tensor, scales: Tensor, colors: Tensor, opacities: Tensor) -> int | None:
+def _check_gaussians(
+    means: Tensor, scales: Tensor, colors: Tensor, opacities: Tensor, check_finite: bool = True
+) -> int | None:
     """The Gaussians' batch size (None when unbatched); raises a PghmError naming a bad argument."""
     if not isinstance(means, Tensor) or means.dim() not in (2, 3) or means.shape[-1] != 3:
         got = tuple(means.shape) if isinstance(means, Tensor) else type(means).__name__
@@ -65,8 +67,8 @@ def _check_gaussians(means: Tensor, scales: Tensor, colors: Tensor, opacities: T
             raise PghmError(f"render: {name} is {value.dtype} but means is {means.dtype}; use one dtype")
         if value.device != means.device:
             raise PghmError(f"render: {name} is on {value.device} but means on {means.device}; use one device")
-        finite = torch.isfinite(value.detach())
-        if not bool(finite.all()):
+        finite = torch.isfinite(value.detach()) if check_finite else None
+        if finite is not None and not bool(finite.all()):
             count = int((~finite).sum())
             raise PghmError(f"render: {name} has {count} non-finite value(s); every Gaussian must be finite")
     return means.shape[0] if means.dim() == 3 else None
@@ -143,6 +145,7 @@ def render(
     *,
     settings: SplatSettings | None = None,
     backend: Backend = "auto",
+    check_finite: bool = True,
 ) -> RenderOutput:
     """Splat isotropic Gaussians into one image per camera, by the spec in :mod:`pghm.splat`.
 
@@ -157,6 +160,8 @@ def render(
         backend: "native" (C++ kernel), "torch" (readable twin) or "auto" (native if it builds)
             for CPU tensors; "gsplat" or "auto" for CUDA tensors (:mod:`pghm.splat.gsplat_backend`,
             float32, with the differences to this spec listed there).
+        check_finite: False skips the check that every value is finite, for a caller that has
+            made them so (the training loop); on a CUDA device the check waits for the device.
 
     Returns:
         rgb (B, H, W, 3), alpha (B, H, W), depth (B, H, W) in the Gaussians' dtype, with B
@@ -166,7 +171,7 @@ def render(
     if not isinstance(camera, Camera):
         raise PghmError(f"render: camera must be a pghm.splat.Camera, got {type(camera).__name__}")
     settings = settings if settings is not None else SplatSettings()
-    gaussian_batch = _check_gaussians(means, scales, colors, opacities)
+    gaussian_batch = _check_gaussians(means, scales, colors, opacities, check_finite)
     camera_batch = camera.batch_size
     if gaussian_batch is not None and camera_batch is not None and gaussian_batch != camera_batch:
         raise PghmError(f"render: {gaussian_batch} batched Gaussian sets but {camera_batch} cameras")

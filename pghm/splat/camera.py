@@ -43,6 +43,9 @@ def _as_double(value: Scalar) -> Tensor:
     return torch.tensor(float(value), dtype=torch.float64)
 
 
+INTRINSICS = ("fx", "fy", "cx", "cy")
+
+
 @dataclass(frozen=True, eq=False)
 class Camera:
     """A pinhole camera, or a batch of B of them with one image size.
@@ -121,6 +124,24 @@ class Camera:
         rotation = self.world_to_camera[..., :3, :3]
         translation = self.world_to_camera[..., :3, 3]
         return -(rotation.transpose(-1, -2) @ translation.unsqueeze(-1)).squeeze(-1)
+
+    @classmethod
+    def stack(cls, cameras: list[Camera], dtype: torch.dtype = torch.float32) -> Camera:
+        """A batch of the single ``cameras`` (one image size), their values in ``dtype``.
+
+        The cameras were checked when they were made, so their stack is not checked again: on a
+        CUDA device each check reads a value to the host, which waits for the device.
+        """
+        if not cameras or any(c.batch_size is not None for c in cameras):
+            raise PghmError("camera: stack takes one or more single cameras")
+        if len({(c.width, c.height) for c in cameras}) > 1:
+            raise PghmError("camera: a batch of cameras needs one image size")
+        batch = object.__new__(cls)
+        values = {name: torch.stack([_as_double(getattr(c, name)) for c in cameras]).to(dtype) for name in INTRINSICS}
+        values["world_to_camera"] = torch.stack([c.world_to_camera for c in cameras]).to(dtype)
+        for name, value in {**values, "width": cameras[0].width, "height": cameras[0].height}.items():
+            object.__setattr__(batch, name, value)
+        return batch
 
     @classmethod
     def from_matrices(cls, K: Tensor, world_to_camera: Tensor, width: int, height: int) -> Camera:  # noqa: N803

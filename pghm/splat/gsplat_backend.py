@@ -29,6 +29,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from pghm.device import constant
 from pghm.errors import PghmError
 from pghm.splat.spec import COV_DILATION, NEAR_PLANE
 from pghm.splat.camera import Camera
@@ -42,6 +43,8 @@ GSPLAT_STOP = 1e-4
 GSPLAT_FOOTPRINT_SIGMAS = 3.33
 """gsplat's cap on a footprint's half-side, in standard deviations of cov2d along each axis."""
 DEPTH_MODE = "RGB+D"
+IDENTITY_QUATERNION = (1.0, 0.0, 0.0, 0.0)
+"""gsplat's (w, x, y, z) rotation of every Gaussian: pghm's are isotropic."""
 """gsplat's render mode whose fourth channel is sum_i t_z,i alpha_i T_i: the spec's depth."""
 
 
@@ -81,7 +84,7 @@ def rasterization_arguments(
     """
     batch, count = opacities.shape
     device = means.device
-    quats = torch.tensor([1.0, 0.0, 0.0, 0.0], device=device, dtype=dtype).expand(batch, count, 4)
+    quats = constant(IDENTITY_QUATERNION, dtype, device).expand(batch, count, 4)
     pose = camera.world_to_camera.to(device=device, dtype=dtype).expand(batch, 4, 4)
     intrinsics = camera.K.to(device=device, dtype=dtype).expand(batch, 3, 3)
     return {
@@ -96,7 +99,7 @@ def rasterization_arguments(
         "height": camera.height,
         "near_plane": NEAR_PLANE,
         "eps2d": COV_DILATION,
-        "backgrounds": background.to(device=device, dtype=dtype).expand(batch, 1, 3),
+        "backgrounds": constant(tuple(background.tolist()), dtype, device).expand(batch, 1, 3),
         "render_mode": DEPTH_MODE,
         "rasterize_mode": "classic",
         "packed": False,

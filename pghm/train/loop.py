@@ -36,18 +36,21 @@ from pghm.io.atomic import atomic_write_bytes
 from pghm.io.torch_file import TorchFileError, load_torch_file
 from pghm.model.geometry import SubjectGeometry
 from pghm.model.pghm import PGHM, AvatarOutput
-from pghm.splat import Camera, render
+from pghm.splat import render
 from pghm.train import distributed, profile
 from pghm.train.background import BACKGROUND_KINDS, BLACK, WHITE, composite_render, composite_target, draw_backgrounds
 from pghm.train.data import PoseCorrections, Sample, TrainingData
 from pghm.train.losses import LossWeights, objective, psnr, silhouette
-from pghm.train.person_crop import area_tensor
 from pghm.train.plan import Budget
+from pghm.train.resident import Resident, stacked_cameras
 
 log = logging.getLogger(__name__)
 
 LR_BACKOFF = 0.5
 """Learning-rate factor applied after a non-finite step."""
+SAFE_VALUES = (0.0, 1.0, 0.0, 0.0)
+"""Means, scales, colours and opacities that stand in for non-finite ones in a step that is then
+skipped: an invisible Gaussian the splatter accepts."""
 CHECKPOINT_FORMAT = "pghm-checkpoint"
 BYTES_PER_TRAINING_PIXEL = 8192
 """Memory one image pixel of a step holds (target, mask, both renders, the splatter's per-pixel
@@ -129,11 +132,19 @@ class AvatarObjective(nn.Module):
         self.weights = weights
         self.lpips = lpips
         self.dynamic_only = dynamic_only
+        self._resident: Resident | None = None
 
     @property
     def device(self) -> torch.device:
         """Where the model lives: the step's samples, backgrounds and indices are made there."""
         return self.model.identity_bank.device
+
+    @property
+    def resident(self) -> Resident:
+        """The samples, indices and constants of the steps, kept on the model's device."""
+        if self._resident is None or self._resident.device != self.device:
+            self._resident = Resident(self.device)
+        return self._resident
 
     def identity_map(self, identity: int) -> Tensor:
         return self.latent if self.latent is not None else self.model.decode_identity(identity)
@@ -158,51 +169,42 @@ class AvatarObjective(nn.Module):
             rotations = torch.stack([samples[i].rotations for i in first])
             translation = torch.stack([samples[i].translation for i in first])
             if self.corrections is not None:
-                rotations, translation = self.corrections(
-                    torch.tensor(unique, device=self.device), rotations, translation
-                )
-            pose_index = torch.tensor([unique.index(k) for k in keys], device=self.device)
+                rotations, translation = self.corrections(self.resident.indices(unique), rotations, translation)
+            pose_index = self.resident.indices([unique.index(k) for k in keys])
             centres = torch.stack([s.camera.centre.float() for s in samples])
             out = self.avatar(samples[0].identity, geometry, BodyPose(rotations, translation), centres, pose_index)
         # Both sets of all B views in one batched render: (2B, H, W, 3).
         if len({(s.camera.width, s.camera.height) for s in samples}) > 1:
             raise DatasetError("the images of one subject must all have the same size")
         sets = (out.dynamic,) if self.dynamic_only else (out.static, out.dynamic)
-        cameras = Camera.from_matrices(
-            torch.stack([s.camera.K for s in samples] * len(sets)).float(),
-            torch.stack([s.camera.world_to_camera for s in samples] * len(sets)).float(),
-            samples[0].camera.width,
-            samples[0].camera.height,
-        )
+        cameras = stacked_cameras(samples, len(sets))
         both = [torch.cat([getattr(g, f) for g in sets]) for f in ("means", "scales", "colors", "opacities")]
         with profile.part(profile.GUARD):
-            finite = all_finite(both)
-        if not finite:
-            # A diverged network: hand the loop a non-finite loss that still has a graph (the
-            # guard then skips the step and lowers the rate) rather than non-finite Gaussians,
-            # which render refuses.
-            poison = sum(t.sum() for t in both) * math.nan
-            blank = poison.expand(len(samples), 3, samples[0].camera.height, samples[0].camera.width)
-            static = None if self.dynamic_only else blank
-            return static, blank, None if static is None else blank[:, :1], blank[:, :1], out.regularizer + poison
+            # A diverged network: the loss is made NaN (the loop's guard then skips the step and
+            # lowers the rate) and the non-finite values replaced by ones render accepts, all on
+            # the device (asking whether they are finite would wait for it).
+            finite = finite_flag(both)
+            both = [torch.where(torch.isfinite(t), t, torch.full_like(t, safe)) for t, safe in zip(both, SAFE_VALUES)]
+            poison = torch.where(finite, 0.0, math.nan)
         with profile.part(profile.SPLAT_FORWARD):
-            drawn = render(*both, cameras, background=WHITE if backgrounds is None else BLACK)
+            drawn = render(*both, cameras, background=WHITE if backgrounds is None else BLACK, check_finite=False)
             profile.mark_backward([drawn.rgb, drawn.alpha], both)
             images, alphas = drawn.rgb.permute(0, 3, 1, 2), drawn.alpha[:, None]
             if backgrounds is not None:
                 images = composite_render(images, alphas, torch.cat([backgrounds] * len(sets)))
+        regularizer = out.regularizer + poison
         if self.dynamic_only:
-            return None, images, None, alphas, out.regularizer
+            return None, images, None, alphas, regularizer
         count = len(samples)
-        return images[:count], images[count:], alphas[:count], alphas[count:], out.regularizer
+        return images[:count], images[count:], alphas[:count], alphas[count:], regularizer
 
     def forward(
         self, samples: list[Sample], geometry: SubjectGeometry, backgrounds: Tensor | None = None
-    ) -> tuple[Tensor, dict[str, float]]:
+    ) -> tuple[Tensor, dict[str, Tensor]]:
         """The loss of one identity's samples and its terms; with ``backgrounds`` (B, 3, H, W),
         targets and renders are composited on them (see :mod:`pghm.train.background`). Samples and
         backgrounds are moved to the model's device (loaded on the CPU, they are read there once)."""
-        samples, backgrounds = [move(s, self.device) for s in samples], move(backgrounds, self.device)
+        samples, backgrounds = [self.resident.sample(s) for s in samples], move(backgrounds, self.device)
         static, dynamic, static_alpha, dynamic_alpha, regularizer = self.renders(samples, geometry, backgrounds)
         with profile.part(profile.DATA):
             target = torch.stack([s.image for s in samples])
@@ -222,24 +224,24 @@ class AvatarObjective(nn.Module):
         samples: list[Sample],
         target: Tensor,
         mask: Tensor,
-    ) -> tuple[Tensor, dict[str, float]]:
+    ) -> tuple[Tensor, dict[str, Tensor]]:
         """The loss of renders (B, 3, H, W) and alphas (B, 1, H, W) against targets and masks, and its
-        terms; those of the full frames when the samples are crops. A static render of None: the
+        terms (0-dim tensors on the device); those of the full frames when the samples are crops. A static render of None: the
         dynamic one stands in for it (:attr:`dynamic_only`)."""
-        area = area_tensor([s.crop for s in samples]).to(dynamic.device) if any(s.crop for s in samples) else None
+        area = self.resident.areas(samples)
         share = area[:, 0] if area is not None else None
         loss, terms = objective(static, dynamic, target, regularizer, self.weights, self.lpips, area)
         if self.weights.silhouette > 0:
             sil_d = silhouette(dynamic_alpha, mask, share).mean()
             sil_s = sil_d if static_alpha is None else silhouette(static_alpha, mask, share).mean()
             loss = loss + self.weights.silhouette * (sil_s + sil_d)
-            terms.update(sil_s=float(sil_s.detach()), sil_d=float(sil_d.detach()), loss=float(loss.detach()))
+            terms.update(sil_s=sil_s.detach(), sil_d=sil_d.detach(), loss=loss.detach())
         if self.corrections is not None and self.weights.pose_prior > 0:
-            prior = self.corrections.prior(torch.tensor(distinct_frames(samples), device=self.device))
+            prior = self.corrections.prior(self.resident.indices(distinct_frames(samples)))
             loss = loss + self.weights.pose_prior * prior
-            terms["pose_prior"] = float(prior.detach())
-            terms["loss"] = float(loss.detach())
-        terms["psnr"] = float(psnr(dynamic.detach().clamp(0, 1), target, share).mean())
+            terms["pose_prior"] = prior.detach()
+            terms["loss"] = loss.detach()
+        terms["psnr"] = psnr(dynamic.detach().clamp(0, 1), target, share).mean()
         return loss, terms
 
 
@@ -415,8 +417,16 @@ def check_trained(states: list[LoopState], out: Path) -> None:
 
 
 def all_finite(tensors) -> bool:
-    """Whether every value of every tensor in ``tensors`` is finite (the guard's check)."""
-    return all(bool(torch.isfinite(t).all()) for t in tensors)
+    """Whether every value of every tensor in ``tensors`` is finite (one read of the device)."""
+    return bool(finite_flag(tensors))
+
+
+def finite_flag(tensors) -> Tensor:
+    """A 0-dim bool tensor: every value of every tensor in ``tensors`` is finite. Fused, so the host
+    reads one value however many tensors there are (a read per tensor would wait for the device
+    once per parameter)."""
+    flags = [torch.isfinite(t).all() for t in tensors]
+    return torch.stack(flags).all() if flags else torch.tensor(True)
 
 
 def run_stage(
@@ -473,7 +483,8 @@ def run_stage(
             plan = data.plan(config.seed, state.step, config.shards, config.images_per_shard, config.same_instant)
             mine = plan[rank::world]
             optimizer.zero_grad(set_to_none=False)
-            total, terms_sum, groups = 0.0, {}, 0
+            terms_sum: dict[str, Tensor] = {}
+            groups = 0
             for position, (identity, images) in enumerate(mine):
                 with profile.part(profile.DATA):
                     samples = data.load_group(identity, images)
@@ -493,23 +504,29 @@ def run_stage(
                     loss, terms = module(samples, geometry_of(identity), backgrounds)
                     with profile.part(profile.LOSSES_BACKWARD):
                         (loss / len(mine)).backward()
-                total += loss.item()
                 groups += 1
                 for key, value in terms.items():
-                    terms_sum[key] = terms_sum.get(key, 0.0) + value
+                    terms_sum[key] = terms_sum[key] + value if key in terms_sum else value
             with profile.part(profile.GUARD):
                 backup = [p.detach().clone() for p in trainable]
-                finite = math.isfinite(total) and all_finite(p.grad for p in trainable if p.grad is not None)
+                # One read of the device decides the step: the loss and every gradient finite.
+                losses = [terms_sum["loss"]] if groups else []
+                finite = all_finite([*losses, *(p.grad for p in trainable if p.grad is not None)])
             if finite:
                 with profile.part(profile.OPTIMISER):
                     torch.nn.utils.clip_grad_norm_(trainable, config.max_grad_norm)
                     optimizer.step()
-                with profile.part(profile.GUARD):
-                    if not all_finite(trainable):
-                        with torch.no_grad():
-                            for p, saved in zip(trainable, backup):
-                                p.copy_(saved)
-                        finite = False
+            with profile.part(profile.GUARD):
+                # The second read: the update finite, and the step's terms for the log.
+                skipped = torch.zeros((), dtype=torch.bool, device=objective.device)
+                updated = finite_flag(trainable) if finite else skipped
+                names = list(terms_sum)
+                values = torch.stack([updated.to(torch.float64), *(terms_sum[k].double() for k in names)]).tolist()
+                if finite and not values[0]:
+                    with torch.no_grad():
+                        for p, saved in zip(trainable, backup):
+                            p.copy_(saved)
+                    finite = False
             if not finite:
                 state.skipped_steps += 1
                 state.lr_scale *= LR_BACKOFF
@@ -528,7 +545,7 @@ def run_stage(
                 steps = progress.total = budget.steps(state.step)
                 postfix["fit_left"] = f"{budget.eta() / 60:.1f}min"
             if groups:
-                mean = {k: v / groups for k, v in terms_sum.items()}
+                mean = {k: v / groups for k, v in zip(names, values[1:])}
                 state.history.append({"step": state.step, **{k: round(v, 5) for k, v in mean.items()}})
                 postfix.update(loss=f"{mean['loss']:.4f}", psnr=f"{mean['psnr']:.2f}")
             progress.set_postfix(postfix)

@@ -24,6 +24,7 @@ import torch.nn.functional as F
 from pytorch_msssim import ssim as _ssim
 from torch import Tensor
 
+from pghm.device import constant
 from pghm.errors import PghmError
 
 SSIM_WINDOW = 11
@@ -83,7 +84,7 @@ class TargetSsim:
     """
 
     def __init__(self, target: Tensor) -> None:
-        self.window = gaussian_window().to(target)  # made once where the images are
+        self.window = constant(tuple(gaussian_window().tolist()), target.dtype, target.device)
         self.target = target
         mu, second = window_means(torch.cat([target, target * target], 1), self.window).chunk(2, 1)
         self.mu, self.mu_sq = mu, mu.square()
@@ -147,15 +148,16 @@ def objective(
     weights: LossWeights = LossWeights(),
     lpips=None,
     area: Tensor | None = None,
-) -> tuple[Tensor, dict[str, float]]:
+) -> tuple[Tensor, dict[str, Tensor]]:
     """The paper's loss on both renders (B, 3, H, W), averaged over the batch (crops: ``area``
     as in :func:`image_losses`). ``static_render`` None: the dynamic render's terms count twice,
     standing in for the static one's (the same loss when the two renders are equal).
 
-    Returns the scalar loss and a dict of its terms for logging.
+    Returns the scalar loss and a dict of its terms for logging, detached 0-dim tensors where the
+    loss is (read to the host once a step, by the caller).
     """
     total = weights.regularizer * regularizer
-    log = {"reg": float(regularizer.detach())}
+    log = {"reg": regularizer.detach()}
     target_ssim = TargetSsim(target)
     renders = (("d", dynamic_render),) if static_render is None else (("s", static_render), ("d", dynamic_render))
     count = 3 - len(renders)  # each render's terms count this many times: 2 - 1 = 1 for both renders
@@ -164,6 +166,6 @@ def objective(
         total = total + count * weights.l1 * terms["l1"].mean() + count * weights.ssim * terms["dssim"].mean()
         if "lpips" in terms:
             total = total + count * weights.lpips * terms["lpips"].mean()
-        log.update({f"{key}_{name}": float(value.detach().mean()) for key, value in terms.items()})
-    log["loss"] = float(total.detach())
+        log.update({f"{key}_{name}": value.detach().mean() for key, value in terms.items()})
+    log["loss"] = total.detach()
     return total, log

@@ -22,6 +22,7 @@ Per element, with g the gradient, t the row's step count and alpha the learning 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 
 import torch
@@ -44,11 +45,14 @@ class LazyAdam(torch.optim.Optimizer):
         eps: float = 1e-8,
     ) -> None:
         super().__init__(params, {"lr": lr, "betas": betas, "eps": eps, "lazy": False})
+        self._host_steps: dict[Tensor, int] = {}
+        """Each dense parameter's step count, kept on the host beside its ``state["step"]``."""
 
     def load_state_dict(self, state_dict: dict) -> None:
         """As torch's, with each parameter's step counts on its device: torch moves the moments to
         the parameter's device but leaves "step" where the checkpoint held it (the CPU)."""
         super().load_state_dict(state_dict)
+        self._host_steps = {}
         for parameter, state in self.state.items():
             if "step" in state:
                 state["step"] = state["step"].to(parameter.device)
@@ -58,18 +62,47 @@ class LazyAdam(torch.optim.Optimizer):
         if closure is not None:
             raise ValueError("LazyAdam does not take a closure")
         for group in self.param_groups:
+            dense = []
             for p in group["params"]:
                 if p.grad is None:
                     continue
                 state = self.state[p]
                 if not state:
+                    rows = p.shape[0] if group["lazy"] else 1
                     state["exp_avg"] = torch.zeros_like(p)
                     state["exp_avg_sq"] = torch.zeros_like(p)
-                    state["step"] = torch.zeros(p.shape[0] if group["lazy"] else 1, dtype=torch.float64, device=p.device)
+                    state["step"] = torch.zeros(rows, dtype=torch.float64, device=p.device)
+                    self._host_steps[p] = 0
                 if group["lazy"]:
-                    _lazy_update(p, state, group)
+                    (_masked_lazy_update if p.is_cuda else _lazy_update)(p, state, group)
                 else:
-                    _adam_update(p, p.grad, state["exp_avg"], state["exp_avg_sq"], state["step"].add_(1), group)
+                    dense.append(p)
+            if dense:
+                self._dense_update(dense, group)
+
+    def _dense_update(self, params: list[Tensor], group: dict) -> None:
+        """Adam on every element of ``params``, each op once for all of them (torch's foreach ops).
+
+        The bias corrections come from step counts the host keeps beside the tensors (read from
+        them once, after a checkpoint is loaded), so no step reads the device."""
+        beta1, beta2 = group["betas"]
+        grads = [p.grad for p in params]
+        states = [self.state[p] for p in params]
+        exp_avgs, exp_avg_sqs = [s["exp_avg"] for s in states], [s["exp_avg_sq"] for s in states]
+        steps = []
+        for p, state in zip(params, states):
+            step = self._host_steps.get(p)
+            step = (round(float(state["step"][0])) if step is None else step) + 1
+            self._host_steps[p] = step
+            steps.append(step)
+        torch._foreach_add_([s["step"] for s in states], 1.0)
+        torch._foreach_lerp_(exp_avgs, grads, 1 - beta1)
+        torch._foreach_mul_(exp_avg_sqs, beta2)
+        torch._foreach_addcmul_(exp_avg_sqs, grads, grads, value=1 - beta2)
+        denominators = torch._foreach_sqrt(exp_avg_sqs)
+        torch._foreach_div_(denominators, [math.sqrt(1 - beta2**t) for t in steps])
+        torch._foreach_add_(denominators, group["eps"])
+        torch._foreach_addcdiv_(params, exp_avgs, denominators, [-group["lr"] / (1 - beta1**t) for t in steps])
 
 
 def _adam_update(p: Tensor, grad: Tensor, exp_avg: Tensor, exp_avg_sq: Tensor, step: Tensor, group: dict) -> None:
@@ -97,3 +130,18 @@ def _lazy_update(p: Tensor, state: dict, group: dict) -> None:
     state["exp_avg"][rows] = exp_avg
     state["exp_avg_sq"][rows] = exp_avg_sq
     state["step"][rows] = step
+
+
+def _masked_lazy_update(p: Tensor, state: dict, group: dict) -> None:
+    """:func:`_lazy_update` without asking which rows were touched: every row is computed and the
+    untouched ones kept by a mask (on a GPU, reading the touched rows' indices would wait for the
+    device; computing the whole table costs it little). Equal to :func:`_lazy_update` bit for bit."""
+    touched = p.grad.reshape(p.shape[0], -1).ne(0).any(1)
+    step = state["step"] + touched
+    exp_avg, exp_avg_sq, values = state["exp_avg"].clone(), state["exp_avg_sq"].clone(), p.clone()
+    _adam_update(values, p.grad, exp_avg, exp_avg_sq, step.clamp(min=1), group)
+    rows = touched.reshape((-1,) + (1,) * (p.dim() - 1))
+    p.copy_(torch.where(rows, values, p))
+    state["exp_avg"].copy_(torch.where(rows, exp_avg, state["exp_avg"]))
+    state["exp_avg_sq"].copy_(torch.where(rows, exp_avg_sq, state["exp_avg_sq"]))
+    state["step"].copy_(step)
