@@ -92,6 +92,33 @@ def test_bad_options(tmp_path, capsys, options, fragment):
     assert_refused(tmp_path, *run_capture(tmp_path, capsys, path, *options), fragment)
 
 
+def test_a_lens_whose_crop_the_checker_would_refuse_is_refused_before_the_images():
+    """--fov 1 (the option's lowest) on 1280 x 720 frames and a 300 x 600 crop: the crop would see
+    0.47 degrees (tan(fov' / 2) = tan(0.5 deg) 600 / 1280), which the subject's checker refuses;
+    the least --fov named keeps the crop's camera inside the checker's rule."""
+    from pghm.capture.config import CaptureConfig
+    from pghm.capture.crop import Region, crop_intrinsics
+    from pghm.errors import PghmError
+    from pghm.subject.format import focal_range
+
+    frames, crop = (1280, 720), (300, 600)
+    with pytest.raises(PghmError) as refused:
+        CaptureConfig(fov_deg=1.0).validate().check_crop_camera(*crop, *frames)
+    message = str(refused.value)
+    assert message.startswith("--fov 1: the person's crop (300x600 of the 1280x720 frames) would see 0.469 degrees")
+    least = float(message.split("give --fov ")[1].split()[0])
+    assert least == pytest.approx(2.14)
+    for fov, accepted in ((least, True), (least - 0.02, False)):
+        config = CaptureConfig(fov_deg=fov).validate()
+        K = crop_intrinsics(config.source_intrinsics(*frames), Region(0, 0, *crop), (512, 256))
+        assert (K[0, 0] / 512 <= focal_range(1.0)[1]) == accepted  # the checker's rule on the crop
+        if accepted:
+            config.check_crop_camera(*crop, *frames)
+    CaptureConfig(fov_deg=1.0).validate().check_crop_camera(*frames, *frames)  # the whole frame: the lens's 1 degree
+    with pytest.raises(PghmError, match="--focal 1e[+]06: .* at most 3.438e[+]04 pixels"):
+        CaptureConfig(focal_px=1e6).validate().check_crop_camera(*crop, *frames)
+
+
 def test_without_mediapipe_says_how_to_install(tmp_path, capsys, monkeypatch):
     for name in [name for name in sys.modules if name == "mediapipe" or name.startswith("mediapipe.")] + ["mediapipe"]:
         monkeypatch.setitem(sys.modules, name, None)  # import mediapipe now raises ImportError

@@ -84,6 +84,26 @@ def test_fit_writes_the_avatar_and_its_profile_or_neither(tiny_dataset, avatar_f
     assert not out.exists() and not profile.exists()
 
 
+def test_a_fit_or_prior_that_the_disk_cannot_hold_is_refused_before_its_first_step(
+    tiny_dataset, avatar_file, full, capsys, monkeypatch
+):
+    from pghm.train import loop
+
+    def no_step(name: str) -> None:
+        raise AssertionError("a step ran before the output's room was checked")
+
+    monkeypatch.setattr(loop, "interrupt_point", no_step)
+    prior = avatar_file.with_name("prior.pt")
+    for args in (
+        ["fit", str(tiny_dataset / SUBJECT), "--prior", str(prior), "--out", str(full / "a.pt"), "--no-lpips"],
+        ["train-prior", str(tiny_dataset), "--out", str(full / "p.pt"), "--steps", "1", "--no-lpips"],
+    ):
+        status = main(args)
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert status == 2 and len(lines) == 1 and "needs about" in lines[0] and lines[0].endswith("write elsewhere")
+    assert [p.name for p in full.iterdir()] == ["filler"]
+
+
 def test_an_avatar_on_a_full_disk_is_one_line(tiny_dataset, avatar_file, full, capsys):
     out = full / "posed.ply"
     status = main(["export", str(avatar_file), "--pose", "walk", "--frame", "1", "--out", str(out)])

@@ -254,6 +254,32 @@ class CaptureConfig:
                 f"a lens's {FOV_RANGE_DEG[0]:g} to {FOV_RANGE_DEG[1]:g} degrees are {low:.4g} to {high:.4g} pixels"
             )
 
+    def check_crop_camera(self, region_width: int, region_height: int, width: int, height: int) -> None:
+        """Raise :class:`PghmError` when the lens ``fov_deg`` or ``focal_px`` states for W x H frames
+        would give the person's crop (region_width x region_height of them) a field of view below
+        :data:`FOV_RANGE_DEG`'s, which the subject's checker refuses: a crop narrows the lens's view
+        by the share of the frame it keeps, tan(fov' / 2) = tan(fov / 2) crop / frame (longest sides).
+        Asked once the crop is known, before any image is written."""
+        K = self.source_intrinsics(width, height)
+        if K is None:
+            return
+        region_long = max(region_width, region_height)
+        longest_focal = focal_range(region_long)[1]
+        if K[0, 0] <= longest_focal:
+            return
+        crop_fov = math.degrees(2 * math.atan(0.5 * region_long / K[0, 0]))
+        crop = f"the person's crop ({region_width}x{region_height} of the {width}x{height} frames)"
+        if self.focal_px is not None:
+            raise PghmError(
+                f"--focal {self.focal_px:g}: {crop} would see {crop_fov:.3g} degrees, below the "
+                f"{FOV_RANGE_DEG[0]:g} a camera may have; a focal length of at most {longest_focal:.4g} pixels fits"
+            )
+        least = math.degrees(2 * math.atan(0.5 * max(width, height) / longest_focal))
+        raise PghmError(
+            f"--fov {self.fov_deg:g}: {crop} would see {crop_fov:.3g} degrees, below the "
+            f"{FOV_RANGE_DEG[0]:g} a camera may have; give --fov {math.ceil(least * 100) / 100:g} or more"
+        )
+
     def source_intrinsics(self, width: int, height: int) -> np.ndarray | None:
         """(3, 3) K in pixels of the full upright video frame (W x H), or None when unknown.
 

@@ -236,6 +236,7 @@ def observe_video(
         track = _track(source, config)
         _require_frames(source.name, len(track.frame_index), track.frames_read, track.lost, config)
         region = person_region(track.boxes, source.width, source.height, config.crop_margin)
+        config.check_crop_camera(region.width, region.height, source.width, source.height)
         out_size = scaled_size(region, config.size)
         K = config.source_intrinsics(source.width, source.height)
         K = None if K is None else crop_intrinsics(K, region, out_size)

@@ -80,6 +80,19 @@ def free_space_note(path: Path) -> str:
     return f" ({free:.0f} MB free)" if free is not None else ""
 
 
+def check_free_space(path: str | os.PathLike, needed_bytes: int) -> None:
+    """Refuse, before the work that would fill it, an output whose filesystem has less room than
+    the ``needed_bytes`` its files will roughly take: ``PATH: needs about N MB, M MB free``. A
+    rough check (other writers may come and go); the writes themselves still check their bytes."""
+    path = Path(path)
+    free = free_megabytes(path)
+    needed = needed_bytes / 2**20
+    if free is not None and free < needed:
+        raise PghmError((
+            f"{path}: needs about {max(needed, 0.1):.1f} MB, {free:.1f} MB free; free some space or write elsewhere"
+        ))
+
+
 def write_failure(path: Path, error: OSError) -> PghmError:
     """The one line for a failed write of ``path``: ``path: no space left on device (12 MB free)``."""
     reason = (error.strerror or str(error)).lower() if error.errno else str(error)

@@ -72,7 +72,7 @@ from pghm.train.person_crop import CROP_MARGIN
 from pghm.train.plan import DETAIL, EARLY_SETTLING, HELD_OUT, POSE_SETTLING, STAGE1, STAGE2, Budget, Phase, describe
 from pghm.train.pose_refine import refine_poses
 from pghm.train.pose_track import frame_numbers, learned_track, track_corrections
-from pghm.train.run_setup import GeometryCache, checkpoint_path, config_record, lpips_for
+from pghm.train.run_setup import GeometryCache, check_output_room, checkpoint_path, config_record, lpips_for
 from pghm.uv.atlas import MAX_RESOLUTION
 
 log = logging.getLogger(__name__)
@@ -497,6 +497,7 @@ def prepare(
     geometries = GeometryCache(data, model.config, config.body_model_path, device)
     latent = nn.Parameter(initial_latent(model))
     corrections = data.pose_corrections(geometries.body).to(device) if config.refine_poses else None
+    check_output_room(out, model, *([corrections] if corrections is not None else []))
     lpips, lpips_line = lpips_for(config.lpips, device)
     payload = load_checkpoint(ckpt) if resume else None
     subject_images = len(data.subjects[0].split(ALL_SPLIT).indices)

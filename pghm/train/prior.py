@@ -31,7 +31,7 @@ from pghm.train.loop import (
 )
 from pghm.train.losses import LossWeights
 from pghm.train.optim import LazyAdam
-from pghm.train.run_setup import GeometryCache, checkpoint_path, config_record, lpips_for
+from pghm.train.run_setup import GeometryCache, check_output_room, checkpoint_path, config_record, lpips_for
 
 log = logging.getLogger(__name__)
 
@@ -98,6 +98,7 @@ def train_prior(
     geometries = GeometryCache(data, config.model, config.body_model_path, device)
     model = initial_model(config.model, data.num_identities, config.loop.seed).to(device)
     corrections = data.pose_corrections(geometries.body).to(device) if config.refine_poses else None
+    check_output_room(out, model, *([corrections] if corrections is not None else []))
     lpips, lpips_line = lpips_for(config.lpips, device)
     objective = AvatarObjective(model, None, corrections, config.loop.loss, lpips)
     bank = [model.identity_bank]

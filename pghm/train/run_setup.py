@@ -79,3 +79,17 @@ def lpips_for(enabled: bool, device: torch.device | str = "cpu"):
         log.warning("%s; the LPIPS loss term is dropped", lpips_status())
         return None, lpips_status(directories=False)
     return network.to(device), lpips_status(directories=False)
+
+
+OUTPUT_COPIES = 4
+"""The model's bytes an output folder holds at most during a run, roughly: the result once and
+its checkpoint (the weights and Adam's two moments of each, three times over)."""
+
+
+def check_output_room(out: Path, *modules: torch.nn.Module) -> None:
+    """Refuse a run before its first step when ``out``'s filesystem cannot hold its files
+    (:func:`pghm.io.atomic.check_free_space`, OUTPUT_COPIES x the modules' tensors)."""
+    from pghm.io.atomic import check_free_space
+
+    tensors = [t for module in modules for t in module.state_dict().values()]
+    check_free_space(out, OUTPUT_COPIES * sum(t.numel() * t.element_size() for t in tensors))
