@@ -55,6 +55,9 @@ AREAS = {
     "adversarial: data sheet": "folders that are neither a subject nor a data set, wrong output formats",
     "adversarial: motion make": "unknown names and missing body models",
     "adversarial: concurrent writers": "two writers of one output at once",
+    "adversarial: interrupted phases": "SIGINT or SIGTERM in each phase of a fit after a stage, then --resume",
+    "adversarial: full disk": "every output on a full filesystem: one line naming it, all outputs or none",
+    "adversarial: late refusals": "what can be refused before the work: options, image sizes, identities, pose tracks",
 }
 """Report sections, in this order (an area not listed here follows them), and what each attacks."""
 CASES = Path("lab") / "stress-cases.md"

@@ -13,6 +13,7 @@ from pghm.train.plan import (
     DETAIL,
     EARLY_SETTLING,
     HELD_OUT,
+    MIN_DETAIL_SHARE,
     MIN_STAGE_SCALE,
     PHASES,
     POSE_SETTLING,
@@ -61,10 +62,14 @@ def test_an_ample_budget_goes_to_the_stages_and_keeps_the_rest():
     assert seconds - 2 * COST_RATIOS[STAGE1] * costs.step_seconds() <= spent <= seconds
 
 
-def test_a_short_budget_drops_the_detail_stage_first_then_shrinks_the_stages():
+def test_a_short_budget_shortens_the_detail_stage_then_drops_it_then_shrinks_the_stages():
     costs = CostModel(reference_step=0.5)
     detail = costs.seconds_left(DEFAULT[-1])
-    seconds = cost(DEFAULT, costs) - detail / 2  # room for the stages at their steps, not for the layer too
+    seconds = cost(DEFAULT, costs) - detail / 2  # room for the stages at their steps and half the layer
+    planned = {p.name: p for p in budget_plan(DEFAULT, costs, seconds)}
+    assert planned[STAGE1].steps == 50 and planned[STAGE2].steps == 450
+    assert 49 <= planned[DETAIL].steps <= 50 and cost(list(planned.values()), costs) <= seconds
+    seconds = cost(DEFAULT, costs) - (1 - MIN_DETAIL_SHARE + 0.1) * detail  # less than the least share
     planned = {p.name: p for p in budget_plan(DEFAULT, costs, seconds)}
     assert planned[DETAIL].steps == 0 and planned[STAGE2].steps >= 450
     assert cost(list(planned.values()), costs) <= seconds
@@ -153,3 +158,24 @@ def test_after_the_stages_the_detail_stage_gets_the_time_left():
     assert planned[HELD_OUT].steps == 90 and planned[DETAIL].steps == 30
     planned = {p.name: p for p in budget_plan(after[1:], costs, 5 * costs.unit_seconds(DETAIL), {DETAIL: 40})}
     assert planned[DETAIL].steps == 45
+
+
+def test_every_replan_sizes_the_phases_from_the_configs_steps(monkeypatch):
+    """A slow start drops the detail stage; once the stage runs faster than the reference the plan
+    gives it back all its steps: a re-plan scales the config's phases, not the last plan's, whose
+    dropped detail stage could never come back."""
+    clock = Clock()
+    monkeypatch.setattr(plan_module.time, "perf_counter", clock)
+    costs = CostModel(reference_step=0.5)
+    budget = Budget(DEFAULT, cost(DEFAULT, costs), costs)
+    assert budget.phases[DETAIL].steps == 100
+    budget.start(STAGE1)
+    unit = COST_RATIOS[STAGE1] * 0.5
+    clock.now += 3 * 2 * unit  # three steps at twice the reference cost
+    budget.progress(3)
+    budget.steps(3)
+    assert budget.phases[DETAIL].steps == 0
+    clock.now += 27 * 0.5 * unit  # 27 more at half of it: the stage's mean 0.65 of the reference
+    budget.progress(30)
+    budget.steps(30)
+    assert budget.phases[STAGE2].steps >= 450 and budget.phases[DETAIL].steps == 100

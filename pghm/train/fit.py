@@ -34,6 +34,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from pghm._fault_injection import interrupt_point
 from pghm.body import load_body
 from pghm.device import move
 from pghm.errors import PghmError
@@ -468,6 +469,8 @@ def prepare(
     if data.num_identities != 1:
         raise PghmError(f"{subject_dir}: fit takes one subject folder, found {data.num_identities}")
     config = resolved(config, data)
+    if config.uv_resolution is not None:  # before a model is built at it (minutes at the largest L)
+        _check_detail_resolution(config, data, config.uv_resolution)
     check_step_memory(data, config.stage1, "fit stage 1")
     check_step_memory(data, config.stage2, "fit stage 2")
     check_step_memory(data, config.detail, "fit detail stage")
@@ -485,11 +488,7 @@ def prepare(
         if config.uv_resolution not in (None, model.config.uv_resolution):
             model = model.at_resolution(config.uv_resolution)
         prior_source = recorded_path(prior) if not isinstance(prior, Avatar) else "(in memory)"
-    if detail_refusal(config, data) is None and DETAIL_FACTOR * model.config.uv_resolution > MAX_RESOLUTION:
-        raise PghmError(
-            f"a detail layer needs {DETAIL_FACTOR}L <= {MAX_RESOLUTION}, L is {model.config.uv_resolution}: "
-            "give a smaller --uv-resolution or --detail-steps 0"
-        )
+    _check_detail_resolution(config, data, model.config.uv_resolution)
     model = model.to(device)
     model.train()
     for p in model.parameters():
@@ -519,6 +518,15 @@ def prepare(
         payload=payload,
         start_stage=_checkpoint_stage(payload, ckpt) if payload else 1,
     )
+
+
+def _check_detail_resolution(config: FitConfig, data: TrainingData, resolution: int) -> None:
+    """Refuse a detail layer whose atlas, at twice ``resolution``, would pass the largest there is."""
+    if detail_refusal(config, data) is None and DETAIL_FACTOR * resolution > MAX_RESOLUTION:
+        raise PghmError(
+            f"a detail layer needs {DETAIL_FACTOR}L <= {MAX_RESOLUTION}, L is {resolution}: "
+            "give a smaller --uv-resolution or --detail-steps 0"
+        )
 
 
 def fit_phases(run: FitRun) -> list[Phase]:
@@ -696,6 +704,7 @@ def fit(
         else:
             with profile.phase(name), _interrupted_after_a_stage(name, run.checkpoint):
                 budget.finish(phase())
+                interrupt_point(f"fit {name}")  # a test hook: a signal once the phase's work is done
             if name == STAGE1:
                 log.info("fit: stage 1 done; the rest of the plan:\n%s", describe(budget.remaining(), budget.costs))
     record_plan(run.avatar, budget)

@@ -15,10 +15,11 @@ time left, and sized again at every step of a stage as the measured costs come i
     sum over the phases p still to run of  units_p * c_p  <=  deadline - now.
 
 The time goes first to the settling passes and the held-out alignment at their default steps
-(cheap, and what the outline needs), then to the stages, whose steps scale together from the
-config's (stage 1 : stage 2 kept); the detail stage runs only when the stages get at least their
-config's steps besides it, and then gets the time the settling passes leave it. A budget too small
-for that scales the stages down to :data:`MIN_STAGE_SCALE` of their steps, and then the settling
+(cheap, and what the outline needs), then to the stages at their config's steps, then to the
+detail stage (down to :data:`MIN_DETAIL_SHARE` of its steps), and only then to more stage steps,
+which scale together (stage 1 : stage 2 kept): measured, the detail layer buys more than stage
+steps past the config's, which buy next to nothing. A budget too small for the stages drops the
+detail stage and scales them down to :data:`MIN_STAGE_SCALE` of their steps, and then the settling
 passes (docs/training.md, "The plan and the budget").
 """
 
@@ -59,10 +60,15 @@ REFERENCE_STEP_SECONDS = 0.6
 """A stage-2 step of a 512-pixel capture at L = 128 on 2 cores, the estimate before any step has run."""
 CALIBRATION_STEPS = 3
 """Steps of a phase after which its own mean cost replaces the estimate."""
-MIN_STAGE_SCALE = 0.2
-"""Fewest stage steps a budget plans, as a share of the config's (stage 1 at 50 keeps 10)."""
+MIN_STAGE_SCALE = 0.1
+"""Fewest stage steps a budget plans, as a share of the config's (stage 1 at 50 keeps 5): what a
+2-minute budget leaves the stages on a machine 3 times slower than the reference."""
 MAX_STAGE_SCALE = 40.0
 """Most stage steps a budget plans, as a multiple of the config's."""
+MIN_DETAIL_SHARE = 0.4
+"""Least share of the detail stage's steps a budget plans rather than none: at the default 100,
+40 steps, two of its validations (every 20); on the synthetic turn its best layer came at step 40
+and bought 0.8 dB (benchmarks/results/bench_real_budget.json)."""
 
 
 @dataclass(frozen=True)
@@ -118,10 +124,11 @@ class CostModel:
 
 
 def scaled(
-    phases: list[Phase], stage_scale: float, settle_scale: float, detail: bool, done: dict[str, int]
+    phases: list[Phase], stage_scale: float, settle_scale: float, detail: float, done: dict[str, int]
 ) -> list[Phase]:
-    """``phases`` with the stages' steps times ``stage_scale`` and the settling passes' times
-    ``settle_scale`` (each at least its ``done`` units), the detail stage kept or dropped."""
+    """``phases`` with the stages' steps times ``stage_scale``, the settling passes' times
+    ``settle_scale`` and the detail stage's times ``detail`` (0: dropped), each at least its
+    ``done`` units."""
     out = []
     for phase in phases:
         if phase.name in STAGES:
@@ -129,7 +136,7 @@ def scaled(
         elif phase.name in SETTLING:
             steps = round(phase.steps * settle_scale) if phase.steps else 0
         else:
-            steps = phase.steps if detail else 0
+            steps = round(phase.steps * detail)
         floor = math.ceil(done.get(phase.name, 0) / max(phase.frames, 1))
         out.append(replace(phase, steps=max(steps, floor)))
     return out
@@ -160,21 +167,29 @@ def budget_plan(
     if not any(p.name in STAGES for p in phases):
         # The stages are done: the settling passes keep their steps if they can, and the detail
         # stage gets what time they leave.
-        settle = largest_scale(0.0, 1.0, lambda s: scaled(phases, 1.0, s, False, done))
-        plan = scaled(phases, 1.0, 1.0 if settle is None else settle, False, done)
+        settle = largest_scale(0.0, 1.0, lambda s: scaled(phases, 1.0, s, 0.0, done))
+        plan = scaled(phases, 1.0, 1.0 if settle is None else settle, 0.0, done)
         if has_detail:
             spare = max(seconds - cost(plan), 0.0) / costs.unit_seconds(DETAIL)
             detail = next(p for p in phases if p.name == DETAIL)
             steps = min(detail.steps, done.get(DETAIL, 0) + math.floor(spare))
             plan = [replace(p, steps=steps) if p.name == DETAIL else p for p in plan]
         return plan
-    for detail in (True, False) if has_detail else (False,):
-        minimum = 1.0 if detail else MIN_STAGE_SCALE
-        scale = largest_scale(minimum, MAX_STAGE_SCALE, lambda s: scaled(phases, s, 1.0, detail, done))
+    if has_detail:
+        # The stages at their config's steps and the whole detail stage, with more stage steps if
+        # there is time; else the stages at their steps and as much of the detail stage as fits
+        # (it keeps its best layer whenever it stops: MIN_DETAIL_SHARE of it holds two checks).
+        scale = largest_scale(1.0, MAX_STAGE_SCALE, lambda s: scaled(phases, s, 1.0, 1.0, done))
         if scale is not None:
-            return scaled(phases, scale, 1.0, detail, done)
-    settle = largest_scale(0.0, 1.0, lambda s: scaled(phases, MIN_STAGE_SCALE, s, False, done))
-    return scaled(phases, MIN_STAGE_SCALE, settle or 0.0, False, done)
+            return scaled(phases, scale, 1.0, 1.0, done)
+        share = largest_scale(MIN_DETAIL_SHARE, 1.0, lambda d: scaled(phases, 1.0, 1.0, d, done))
+        if share is not None:
+            return scaled(phases, 1.0, 1.0, share, done)
+    scale = largest_scale(MIN_STAGE_SCALE, MAX_STAGE_SCALE, lambda s: scaled(phases, s, 1.0, 0.0, done))
+    if scale is not None:
+        return scaled(phases, scale, 1.0, 0.0, done)
+    settle = largest_scale(0.0, 1.0, lambda s: scaled(phases, MIN_STAGE_SCALE, s, 0.0, done))
+    return scaled(phases, MIN_STAGE_SCALE, settle or 0.0, 0.0, done)
 
 
 def describe(plan: list[Phase], costs: CostModel) -> str:
@@ -210,6 +225,9 @@ class Budget:
         self.started = time.perf_counter() if started is None else started
         self.deadline = None if seconds is None else self.started + seconds
         self.phases = {p.name: p for p in phases}
+        self.planned = dict(self.phases)
+        """The config's phases: every re-plan sizes the remaining ones from these, so the policy's
+        shares and scales are of the config's steps, not of the last plan's."""
         self.order = [p.name for p in phases]
         self.done: dict[str, int] = {}
         self.records: dict[str, dict] = {}
@@ -229,7 +247,8 @@ class Budget:
         if self.deadline is None:
             return
         left = self.deadline - time.perf_counter()
-        for phase in budget_plan(self.remaining(), self.costs, max(left, 0.0), self.done):
+        remaining = [self.planned[p.name] for p in self.remaining()]
+        for phase in budget_plan(remaining, self.costs, max(left, 0.0), self.done):
             self.phases[phase.name] = phase
 
     def start(self, name: str, done: int = 0) -> Phase:

@@ -1034,3 +1034,106 @@ def test_sigterm_during_fit_leaves_a_resumable_checkpoint(world, tiny_prior, tmp
         and resumed.code == 0
         and left == [out.name],
     )
+
+
+# ------------------------------------------------- work lost, refusals that came late, pose tracks
+
+PHASE_SIGNALS = {"early settling": "SIGINT", "held-out poses": "SIGTERM", "detail": "SIGINT"}
+"""Each phase after a stage that once kept no checkpoint, and the signal sent once its work is done."""
+
+
+@pytest.mark.parametrize("phase", list(PHASE_SIGNALS))
+def test_a_signal_in_any_phase_of_a_fit_leaves_a_checkpoint_that_resumes(phase, world, tiny_prior, tmp_path):
+    """The fit's own test hook (``fit PHASE``) signals it once the phase has run; the checkpoint of
+    the stage before it is kept, named, and --resume finishes the fit (that the resumed avatar is
+    the uninterrupted one bit for bit is tests/test_train.py's)."""
+    signal_name = PHASE_SIGNALS[phase]
+    out = tmp_path / "a.pt"
+    argv = [
+        "fit", world["subject"], "--prior", tiny_prior, "--out", out, "--no-lpips", "--stage1-steps", "2",
+        "--stage2-steps", "2", "--early-track-steps", "1", "--held-out-steps", "1", "--detail-steps", "2",
+        "--detail-validation", "0", "--checkpoint-every", "0",
+    ]  # fmt: skip
+    stopped = cli(*argv, cwd=tmp_path, env={TEST_INTERRUPT_VARIABLE: f"fit {phase}:{signal_name}"})
+    checkpoint = out.with_name(out.name + ".ckpt")
+    after_stop = sorted(p.name for p in tmp_path.iterdir())
+    resumed = cli(*argv, "--resume", cwd=tmp_path)
+    left = sorted(p.name for p in tmp_path.iterdir())
+    named = any(f"interrupted in {phase}: checkpoint saved to {checkpoint}" in line for line in stopped.error_lines)
+    code = 128 + signal.Signals[signal_name]
+    check(
+        "adversarial: interrupted phases",
+        f"{signal_name} in the fit's {phase} (test hook), then pghm fit --resume",
+        f"exit {code}, the checkpoint named, only a.pt.ckpt left; the resumed run exits 0, a.pt alone left",
+        f"exit {stopped.code}, named: {named}; left: {after_stop}; resumed: exit {resumed.code}, left: {left}",
+        stopped.code == code and named and after_stop == [checkpoint.name] and resumed.code == 0 and left == [out.name],
+    )
+
+
+def _twice_the_size(folder: Path) -> None:
+    """Image 1 (and its mask) at twice the others' size, its camera scaled to match: consistent
+    alone, but a subject of two sizes."""
+    from PIL import Image
+
+    for kind in ("images", "masks"):
+        path = folder / kind / "000001.png"
+        if path.exists():
+            image = Image.open(path)
+            image.resize((2 * image.width, 2 * image.height), Image.NEAREST).save(path)
+    with np.load(folder / "cameras.npz", allow_pickle=False) as data:
+        cameras = {key: data[key].copy() for key in data.files}
+    cameras["K"][1, :2] *= 2
+    cameras["width"][1] *= 2
+    cameras["height"][1] *= 2
+    (folder / "cameras.npz").write_bytes(npz_bytes(cameras))
+
+
+def _avatar_with_track(world: dict, path: Path, **absurd: float) -> Path:
+    """The world's avatar with a pose track whose fields in ``absurd`` hold that value throughout."""
+    import torch
+
+    payload = torch.load(world["avatar"], weights_only=True)
+    track = {
+        "frames": torch.tensor([0, 1]),
+        "bones": torch.tensor([0, 1]),
+        "rotations": torch.zeros(2, 2, 3),
+        "translation": torch.zeros(2, 3),
+        "poses": "0" * 64,
+    }
+    payload["pose_track"] = {**track, **{k: torch.full_like(track[k], v) for k, v in absurd.items()}}
+    torch.save(payload, path)
+    return path
+
+
+def test_what_can_be_refused_before_the_work_is(world, tiny_prior, tiny_dataset, tmp_path):
+    """Option combinations, a subject of two image sizes, more identities than the data hold, and
+    avatar files whose pose track is absurd: one line before any step (refuse_each)."""
+    work = tmp_path / "work"
+    work.mkdir()
+    fit = ["fit", str(world["subject"]), "--prior", str(tiny_prior), "--out", str(work / "a.pt"), "--no-lpips"]
+    two_sizes = _rewrite_subject(world, work / "two_sizes", _twice_the_size)
+    huge_translation = _avatar_with_track(world, work / "far.pt", translation=1e20)
+    huge_rotation = _avatar_with_track(world, work / "spun.pt", rotations=1e20)
+    cases = {
+        "fit --uv-resolution 1024: a detail layer past the largest atlas, before stage 1": (
+            [*fit, "--uv-resolution", "1024", "--detail-validation", "0"],
+            "a detail layer needs 2L <= 1024",
+        ),
+        "fit on a subject whose image 1 is twice the others' size (its camera scaled to match)": (
+            ["fit", str(two_sizes), "--prior", str(tiny_prior), "--out", str(work / "b.pt"), "--no-lpips"],
+            "a subject's images must all have one size",
+        ),
+        "train-prior --identities 99 on a data set of two": (
+            ["train-prior", str(tiny_dataset), "--out", str(work / "p.pt"), "--identities", "99", "--no-lpips"],
+            "the data set holds 2",
+        ),
+        "eval --fit-poses of an avatar whose pose track translates by 1e20 m": (
+            ["eval", str(huge_translation), str(world["subject"]), "--fit-poses", "--report", str(work / "r.json")],
+            "pose_track.translation' has values",
+        ),
+        "export of an avatar whose pose track rotates by 1e20 rad": (
+            ["export", str(huge_rotation), "--out", str(work / "x.ply")],
+            "pose_track.rotations' has values beyond",
+        ),
+    }
+    refuse_each("adversarial: late refusals", cases, world, tmp_path)

@@ -12,12 +12,14 @@ from pathlib import Path
 
 import pytest
 from conftest import TINY_MODEL
+from stress_kit import check
 
 from pghm.cli.main import main
 from pghm.model import ModelConfig
 from pghm.train.loop import LoopConfig
 from pghm.train.prior import PriorConfig, train_prior
 
+AREA = "adversarial: full disk"
 SUBJECT = "subject_000"
 FULL_BYTES = 256 * 1024
 """Size of the full filesystem: a few pages, filled by one file before each command."""
@@ -59,20 +61,30 @@ def avatar_file(tiny_dataset, tmp_path_factory):
     return folder / "a.pt"
 
 
-def expect_full(capsys, status: int, path: Path) -> None:
-    """Exit 2 and one line naming ``path``, the reason and the space left."""
+def expect_full(capsys, status: int, path: Path, case: str, nothing_left: bool) -> None:
+    """A recorded case: exit 2 and one line naming ``path``, the reason and the space left, and
+    (``nothing_left``) none of the command's outputs written."""
     lines = capsys.readouterr().err.strip().splitlines()
-    assert status == 2 and lines[-1].startswith(f"pghm: error: {path}: no space left on device ("), lines
-    assert lines[-1].endswith(" MB free)") and "Traceback" not in "\n".join(lines)
+    last = lines[-1] if lines else ""
+    check(
+        AREA,
+        case,
+        f"exit 2, one line '{path.name}: no space left on device (N MB free)', none of its outputs left",
+        f"exit {status}: {last.split(': error: ')[-1][-160:]}; outputs left: {'none' if nothing_left else 'some'}",
+        status == 2
+        and last.startswith(f"pghm: error: {path}: no space left on device (")
+        and last.endswith(" MB free)")
+        and "Traceback" not in "\n".join(lines)
+        and nothing_left,
+    )
 
 
 def test_eval_writes_both_outputs_or_neither(tiny_dataset, avatar_file, full, tmp_path, capsys):
     report, strip = tmp_path / "r.json", full / "s.png"
     args = ["eval", str(avatar_file), str(tiny_dataset / SUBJECT), "--report", str(report), "--strip", str(strip)]
     status = main(args)
-    expect_full(capsys, status, strip)
-    assert not report.exists() and not strip.exists()
-    assert [p.name for p in full.iterdir()] == ["filler"] and list(tmp_path.glob(".r.json*")) == []
+    left = report.exists() or strip.exists() or list(tmp_path.glob(".r.json*")) or len(list(full.iterdir())) > 1
+    expect_full(capsys, status, strip, "eval --report r.json --strip FULL/s.png", not left)
 
 
 def test_fit_writes_the_avatar_and_its_profile_or_neither(tiny_dataset, avatar_file, full, tmp_path, capsys):
@@ -80,8 +92,8 @@ def test_fit_writes_the_avatar_and_its_profile_or_neither(tiny_dataset, avatar_f
     out, profile = tmp_path / "a.pt", full / "p.json"
     args = ["fit", str(tiny_dataset / SUBJECT), "--prior", str(prior), "--out", str(out), "--profile", str(profile)]
     status = main([*args, "--stage1-steps", "1", "--stage2-steps", "1", "--detail-steps", "0", "--no-lpips"])
-    expect_full(capsys, status, profile)
-    assert not out.exists() and not profile.exists()
+    case = "fit --out a.pt --profile FULL/p.json (the avatar and its profile)"
+    expect_full(capsys, status, profile, case, not out.exists() and not profile.exists())
 
 
 def test_a_fit_or_prior_that_the_disk_cannot_hold_is_refused_before_its_first_step(
@@ -100,15 +112,23 @@ def test_a_fit_or_prior_that_the_disk_cannot_hold_is_refused_before_its_first_st
     ):
         status = main(args)
         lines = capsys.readouterr().err.strip().splitlines()
-        assert status == 2 and len(lines) == 1 and "needs about" in lines[0] and lines[0].endswith("write elsewhere")
-    assert [p.name for p in full.iterdir()] == ["filler"]
+        check(
+            AREA,
+            f"{args[0]} --out FULL/{Path(args[args.index('--out') + 1]).name}, before its first step",
+            "exit 2, one line 'OUT: needs about N MB, M MB free', no step run, nothing written",
+            f"exit {status}: {' | '.join(lines)[-160:]}",
+            status == 2
+            and len(lines) == 1
+            and "needs about" in lines[0]
+            and lines[0].endswith("write elsewhere")
+            and [p.name for p in full.iterdir()] == ["filler"],
+        )
 
 
 def test_an_avatar_on_a_full_disk_is_one_line(tiny_dataset, avatar_file, full, capsys):
     out = full / "posed.ply"
     status = main(["export", str(avatar_file), "--pose", "walk", "--frame", "1", "--out", str(out)])
-    expect_full(capsys, status, out)
-    assert not out.exists()
+    expect_full(capsys, status, out, "export --out FULL/posed.ply", not out.exists())
 
 
 @pytest.mark.gl
@@ -117,5 +137,15 @@ def test_a_video_the_encoder_could_not_write_is_refused(avatar_file, full, capsy
     args = ["render", str(avatar_file), "--motion", "walk", "--frames", "3", "--size", "64x48", "--out", str(out)]
     status = main(args)
     lines = capsys.readouterr().err.strip().splitlines()
-    assert status == 2 and lines == [f"pghm: error: {out}: the video encoder failed ({lines[-1].split('(')[-1]}"]
-    assert lines[-1].endswith(" MB free)") and not out.exists() and [p.name for p in full.iterdir()] == ["filler"]
+    last = lines[-1] if lines else ""
+    check(
+        AREA,
+        "render --out FULL/a.mp4 (ffmpeg cannot write the video)",
+        "exit 2, one line 'a.mp4: the video encoder failed (... MB free)', no empty video left",
+        f"exit {status}: {' | '.join(lines)[-160:]}",
+        status == 2
+        and lines == [f"pghm: error: {out}: the video encoder failed ({last.split('(')[-1]}"]
+        and last.endswith(" MB free)")
+        and not out.exists()
+        and [p.name for p in full.iterdir()] == ["filler"],
+    )
