@@ -1050,8 +1050,8 @@ def test_a_signal_in_any_phase_of_a_fit_leaves_a_checkpoint_that_resumes(phase, 
     signal_name = PHASE_SIGNALS[phase]
     out = tmp_path / "a.pt"
     argv = [
-        "fit", world["subject"], "--prior", tiny_prior, "--out", out, "--no-lpips", "--stage1-steps", "2",
-        "--stage2-steps", "2", "--early-track-steps", "1", "--held-out-steps", "1", "--detail-steps", "2",
+        "fit", world["subject"], "--prior", tiny_prior, "--out", out, "--no-lpips", "--stage1-steps", "1",
+        "--stage2-steps", "1", "--early-track-steps", "1", "--held-out-steps", "1", "--detail-steps", "1",
         "--detail-validation", "0", "--checkpoint-every", "0",
     ]  # fmt: skip
     stopped = cli(*argv, cwd=tmp_path, env={TEST_INTERRUPT_VARIABLE: f"fit {phase}:{signal_name}"})
