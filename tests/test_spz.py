@@ -13,17 +13,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import SMALL_MODEL
+from test_export_cli import avatar_file  # noqa: F401 - the fixture, shared
 from test_ply import random_gaussians
 
 from pghm.cli.main import main
 from pghm.errors import PghmError
-from pghm.io.avatar import avatar_geometry, load_avatar, save_avatar
+from pghm.io.avatar import avatar_geometry, load_avatar
 from pghm.io.ply import SH_C0
 from pghm.io.spz import read_spz, spz_bytes, write_spz
 from pghm.model.evaluator import CachedEvaluator
 from pghm.motion.procedural import procedural_motion
-from viewer.demo import development_avatar
 
 SPZ_JS = Path(__file__).parent / "js" / "spz-js" / "spz-loader.js"
 POSITION_STEP = 2.0**-12
@@ -112,13 +111,6 @@ def test_another_reader_decodes_the_same_gaussians(tmp_path):
     # Both readers decode the same bytes to the same values, to float32's rounding.
     torch.testing.assert_close(positions, ours[0], rtol=0, atol=1e-6)
     torch.testing.assert_close(rgb, ours[2], rtol=0, atol=1e-5)
-
-
-@pytest.fixture(scope="module")
-def avatar_file(tmp_path_factory):
-    path = tmp_path_factory.mktemp("spz") / "avatar.pt"
-    save_avatar(path, development_avatar(SMALL_MODEL, seed=3))
-    return path
 
 
 def test_export_writes_the_models_gaussians_as_spz(avatar_file, tmp_path, body):
