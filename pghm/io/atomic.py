@@ -88,9 +88,9 @@ def check_free_space(path: str | os.PathLike, needed_bytes: int) -> None:
     free = free_megabytes(path)
     needed = needed_bytes / 2**20
     if free is not None and free < needed:
-        raise PghmError((
+        raise PghmError(
             f"{path}: needs about {max(needed, 0.1):.1f} MB, {free:.1f} MB free; free some space or write elsewhere"
-        ))
+        )
 
 
 def write_failure(path: Path, error: OSError) -> PghmError:

@@ -488,7 +488,8 @@ def prepare(
         if config.uv_resolution not in (None, model.config.uv_resolution):
             model = model.at_resolution(config.uv_resolution)
         prior_source = recorded_path(prior) if not isinstance(prior, Avatar) else "(in memory)"
-    _check_detail_resolution(config, data, model.config.uv_resolution)
+    if config.uv_resolution is None:  # the prior's own L (a given one was checked above)
+        _check_detail_resolution(config, data, model.config.uv_resolution)
     model = model.to(device)
     model.train()
     for p in model.parameters():

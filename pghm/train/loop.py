@@ -36,13 +36,13 @@ from pghm.io.atomic import atomic_write_bytes
 from pghm.io.torch_file import TorchFileError, load_torch_file
 from pghm.model.geometry import SubjectGeometry
 from pghm.model.pghm import PGHM, AvatarOutput
-from pghm.splat import render
+from pghm.splat import Camera, render
 from pghm.train import distributed, profile
 from pghm.train.background import BACKGROUND_KINDS, BLACK, WHITE, composite_render, composite_target, draw_backgrounds
 from pghm.train.data import PoseCorrections, Sample, TrainingData
 from pghm.train.losses import LossWeights, objective, psnr, silhouette
 from pghm.train.plan import Budget
-from pghm.train.resident import Resident, stacked_cameras
+from pghm.train.resident import Resident
 
 log = logging.getLogger(__name__)
 
@@ -177,14 +177,15 @@ class AvatarObjective(nn.Module):
         if len({(s.camera.width, s.camera.height) for s in samples}) > 1:
             raise DatasetError("the images of one subject must all have the same size")
         sets = (out.dynamic,) if self.dynamic_only else (out.static, out.dynamic)
-        cameras = stacked_cameras(samples, len(sets))
+        cameras = Camera.stack([s.camera for s in samples] * len(sets))
         both = [torch.cat([getattr(g, f) for g in sets]) for f in ("means", "scales", "colors", "opacities")]
         with profile.part(profile.GUARD):
             # A diverged network: the loss is made NaN (the loop's guard then skips the step and
             # lowers the rate) and the non-finite values replaced by ones render accepts, all on
             # the device (asking whether they are finite would wait for it).
-            finite = finite_flag(both)
-            both = [torch.where(torch.isfinite(t), t, torch.full_like(t, safe)) for t, safe in zip(both, SAFE_VALUES)]
+            masks = [torch.isfinite(t) for t in both]
+            finite = torch.stack([m.all() for m in masks]).all()
+            both = [torch.where(m, t, torch.full_like(t, safe)) for t, m, safe in zip(both, masks, SAFE_VALUES)]
             poison = torch.where(finite, 0.0, math.nan)
         with profile.part(profile.SPLAT_FORWARD):
             drawn = render(*both, cameras, background=WHITE if backgrounds is None else BLACK, check_finite=False)
@@ -226,8 +227,8 @@ class AvatarObjective(nn.Module):
         mask: Tensor,
     ) -> tuple[Tensor, dict[str, Tensor]]:
         """The loss of renders (B, 3, H, W) and alphas (B, 1, H, W) against targets and masks, and its
-        terms (0-dim tensors on the device); those of the full frames when the samples are crops. A static render of None: the
-        dynamic one stands in for it (:attr:`dynamic_only`)."""
+        terms (0-dim tensors on the device); those of the full frames when the samples are crops. A
+        static render of None: the dynamic one stands in for it (:attr:`dynamic_only`)."""
         area = self.resident.areas(samples)
         share = area[:, 0] if area is not None else None
         loss, terms = objective(static, dynamic, target, regularizer, self.weights, self.lpips, area)

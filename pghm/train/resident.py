@@ -14,7 +14,6 @@ import torch
 from torch import Tensor
 
 from pghm.device import move
-from pghm.splat import Camera
 from pghm.train.data import Sample
 from pghm.train.person_crop import area_tensor
 
@@ -55,8 +54,3 @@ class Resident:
                 self._areas[key] = area_tensor([s.crop]).to(self.device)[0]
         return torch.stack([self._areas[(s.identity, s.image_index)] for s in samples])
 
-
-def stacked_cameras(samples: list[Sample], repeats: int = 1) -> Camera:
-    """One batched camera of the samples' cameras, the batch repeated ``repeats`` times: their
-    checked values stacked as they are (:meth:`pghm.splat.Camera.stack`), read nowhere."""
-    return Camera.stack([s.camera for s in samples] * repeats)

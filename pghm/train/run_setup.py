@@ -13,6 +13,7 @@ import torch
 from pghm.body import load_body
 from pghm.device import move
 from pghm.errors import PghmError
+from pghm.io.atomic import check_free_space
 from pghm.io.avatar import recorded_path
 from pghm.model import ModelConfig, subject_geometry
 from pghm.model.geometry import SubjectGeometry, detail_atlas
@@ -89,7 +90,5 @@ its checkpoint (the weights and Adam's two moments of each, three times over).""
 def check_output_room(out: Path, *modules: torch.nn.Module) -> None:
     """Refuse a run before its first step when ``out``'s filesystem cannot hold its files
     (:func:`pghm.io.atomic.check_free_space`, OUTPUT_COPIES x the modules' tensors)."""
-    from pghm.io.atomic import check_free_space
-
     tensors = [t for module in modules for t in module.state_dict().values()]
     check_free_space(out, OUTPUT_COPIES * sum(t.numel() * t.element_size() for t in tensors))
