@@ -20,6 +20,11 @@ in front of a plain wall, :func:`turning_video`, and doing squats in a furnished
     python benchmarks/bench_real.py [VIDEO ...] [--turning 1] [--exercise 0] [--frames 100] [--busy]
                                     [--budgets 2 5 10 20] [--prior assets/prior.pt]
                                     [--fit-option=--stage2-steps=200 ...] [--keep DIR] [--results bench_real]
+                                    [--reuse bench_real_budget ...]
+
+With ``--reuse NAME ...`` (and ``--keep``, where the avatars are), a video already measured in an
+earlier results file keeps its default fit and the budgets it has; only the missing budgets run, so a
+sweep can be extended without fitting again what it measured.
 
 Prints one row per video and writes benchmarks/results/<results>.json. The load average before each
 timed stage is recorded: a time measured while other jobs share the cores is slower.
@@ -38,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 from bench_error_budget import coverage_swaps, scored_frames
-from common import DOCS, ROOT, load_average, print_table, timed_child, write_json
+from common import DOCS, RESULTS, ROOT, load_average, print_table, timed_child, write_json
 
 from pghm.io.avatar import load_avatar
 
@@ -132,17 +137,17 @@ def bench_video(
     fit, so a long sweep that is cut off keeps what it measured."""
     work.mkdir(parents=True, exist_ok=True)
     subject, avatar = work / "subject", work / "avatar.pt"
+    if name in args.reused:
+        row = {**args.reused[name], "budgets": list(args.reused[name]["budgets"])}
+        return sweep_budgets(row, subject, work, args, save)
     row = {"video": name}
     if not subject.is_dir():
         row["capture"] = run([*PGHM, "capture", str(video), "--out", str(subject)], work / "capture.log")
     row["frames"] = frames_kept(subject)
 
-    def fit(out: Path) -> list[str]:
-        return [*PGHM, "fit", str(subject), "--prior", str(args.prior), "--out", str(out), *args.fit_option]
-
-    row["fit"] = run(fit(avatar), work / "fit.log")
+    row["fit"] = run(fit_command(subject, avatar, args), work / "fit.log")
     if args.busy:
-        row["fit_busy"] = run(fit(work / "avatar_busy.pt"), work / "fit_busy.log", busy=True)
+        row["fit_busy"] = run(fit_command(subject, work / "avatar_busy.pt", args), work / "fit_busy.log", busy=True)
     row["eval"] = evaluate(avatar, subject, work, name)
     fitted = load_avatar(avatar)
     row["steps"] = fitted.metadata["steps"]
@@ -151,14 +156,27 @@ def bench_video(
     row["coverage"]["poses"] = "fit" if fit_poses else "stored"
     row["budgets"] = []
     save(row)
-    for minutes in args.budgets:
+    return sweep_budgets(row, subject, work, args, save)
+
+
+def fit_command(subject: Path, out: Path, args: argparse.Namespace) -> list[str]:
+    return [*PGHM, "fit", str(subject), "--prior", str(args.prior), "--out", str(out), *args.fit_option]
+
+
+def sweep_budgets(
+    row: dict, subject: Path, work: Path, args: argparse.Namespace, save: Callable[[dict], None]
+) -> dict:
+    """``row`` with a fit and its evaluations for each of ``args.budgets`` it does not hold yet."""
+    done = {b["minutes"] for b in row["budgets"]}
+    for minutes in [m for m in args.budgets if m not in done]:
         out = work / f"avatar_{minutes:g}min.pt"
-        timing = run([*fit(out), "--minutes", f"{minutes:g}"], work / f"fit_{minutes:g}min.log")
+        timing = run([*fit_command(subject, out, args), "--minutes", f"{minutes:g}"], work / f"fit_{minutes:g}min.log")
         budget_work = work / f"{minutes:g}min"
         budget_work.mkdir(exist_ok=True)
         figures = evaluate(out, subject, budget_work, None)
         steps = load_avatar(out).metadata["steps"]
         row["budgets"].append({"minutes": minutes, "fit": timing, "steps": steps, "eval": figures})
+        row["budgets"].sort(key=lambda b: b["minutes"])
         save(row)
     return row
 
@@ -197,7 +215,15 @@ def main() -> int:
         "--keep", type=Path, help="keep videos, subjects and avatars here (and reuse captured subjects)"
     )
     parser.add_argument("--results", default="bench_real", help="name of the JSON under benchmarks/results/")
+    parser.add_argument("--reuse", nargs="*", default=[], help="earlier results whose videos' fits are kept")
     args = parser.parse_args()
+    if args.reuse and args.keep is None:
+        parser.error("--reuse needs --keep: the folder that holds the earlier fits' subjects")
+    args.reused = {
+        row["video"]: row
+        for name in args.reuse
+        for row in json.loads((RESULTS / f"{name}.json").read_text())["videos"]
+    }
     shared = ROOT.parent / "shared" / "data" / "video"
     videos = args.videos or sorted(shared.glob("*.mp4"))
     work = args.keep or Path(tempfile.mkdtemp(prefix="bench_real_"))

@@ -64,6 +64,7 @@ from pghm.train.loop import (
     check_trained,
     load_checkpoint,
     restore,
+    restore_objective,
     run_stage,
     save_checkpoint,
 )
@@ -501,6 +502,9 @@ def prepare(
     lpips, lpips_line = lpips_for(config.lpips, device)
     payload = load_checkpoint(ckpt) if resume else None
     subject_images = len(data.subjects[0].split(ALL_SPLIT).indices)
+    objective = AvatarObjective(model, latent, corrections, config.stage1.loss, lpips)
+    if payload:  # a diverged or foreign checkpoint refused before the plan is shown, not when its stage starts
+        restore_objective(payload, objective)
     return FitRun(
         config=config,
         subject_dir=Path(subject_dir),
@@ -510,7 +514,7 @@ def prepare(
         model=model,
         latent=latent,
         corrections=corrections,
-        objective=AvatarObjective(model, latent, corrections, config.stage1.loss, lpips),
+        objective=objective,
         geometries=geometries,
         lpips=lpips,
         lpips_line=lpips_line,

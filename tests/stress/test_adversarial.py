@@ -1070,6 +1070,41 @@ def test_a_signal_in_any_phase_of_a_fit_leaves_a_checkpoint_that_resumes(phase, 
     )
 
 
+def test_a_resume_from_a_diverged_checkpoint_is_refused(world, tiny_prior, tmp_path):
+    """A checkpoint whose latent is NaN (a run that diverged before it was saved): --resume is one
+    line naming the tensor, and no avatar is written from it."""
+    import torch
+
+    work = tmp_path / "work"
+    work.mkdir()
+    out = work / "a.pt"
+    argv = [
+        "fit", world["subject"], "--prior", tiny_prior, "--out", out, "--no-lpips", "--stage1-steps", "1",
+        "--stage2-steps", "1", "--early-track-steps", "1", "--held-out-steps", "1", "--detail-steps", "0",
+        "--checkpoint-every", "0",
+    ]  # fmt: skip
+    cli(*argv, cwd=tmp_path, env={TEST_INTERRUPT_VARIABLE: "fit early settling:SIGINT"})
+    checkpoint = out.with_name(out.name + ".ckpt")
+    payload = torch.load(checkpoint, weights_only=True)
+    payload["objective"]["latent"].fill_(float("nan"))
+    torch.save(payload, checkpoint)
+    cases = {"fit --resume from a checkpoint whose latent is NaN": ([*map(str, argv), "--resume"], "non-finite values")}
+    refuse_each("adversarial: interrupted phases", cases, world, tmp_path)
+
+
+def test_a_lens_whose_crop_the_checker_refuses_is_refused_before_the_images(world, tmp_path):
+    """capture --fov 1 (inside the option's range) on the real video's frames: the person's crop
+    would see less than the subject checker's 1 degree, so capture refuses it before writing."""
+    from capture_videos import real_frames, require_mediapipe
+
+    require_mediapipe()
+    clip = write_video(tmp_path / "clip.mp4", real_frames(10))
+    (tmp_path / "work").mkdir()
+    argv = ["capture", str(clip), "--out", str(tmp_path / "work" / "me"), "--fov", "1", "--quiet"]
+    cases = {"capture --fov 1: a crop the subject checker would refuse": (argv, "give --fov")}
+    refuse_each("adversarial: late refusals", cases, world, tmp_path)
+
+
 def _twice_the_size(folder: Path) -> None:
     """Image 1 (and its mask) at twice the others' size, its camera scaled to match: consistent
     alone, but a subject of two sizes."""
