@@ -24,7 +24,8 @@ in front of a plain wall, :func:`turning_video`, and doing squats in a furnished
 
 With ``--reuse NAME ...`` (and ``--keep``, where the avatars are), a video already measured in an
 earlier results file keeps its default fit and the budgets it has; only the missing budgets run, so a
-sweep can be extended without fitting again what it measured.
+sweep can be extended without fitting again what it measured. ``--tabulate`` runs nothing: the
+reused videos (later files win) are tabulated and plotted together, each with the budgets it holds.
 
 Prints one row per video and writes benchmarks/results/<results>.json. The load average before each
 timed stage is recorded: a time measured while other jobs share the cores is slower.
@@ -168,7 +169,7 @@ def sweep_budgets(
 ) -> dict:
     """``row`` with a fit and its evaluations for each of ``args.budgets`` it does not hold yet."""
     done = {b["minutes"] for b in row["budgets"]}
-    for minutes in [m for m in args.budgets if m not in done]:
+    for minutes in [] if args.tabulate else [m for m in args.budgets if m not in done]:
         out = work / f"avatar_{minutes:g}min.pt"
         timing = run([*fit_command(subject, out, args), "--minutes", f"{minutes:g}"], work / f"fit_{minutes:g}min.log")
         budget_work = work / f"{minutes:g}min"
@@ -216,9 +217,12 @@ def main() -> int:
     )
     parser.add_argument("--results", default="bench_real", help="name of the JSON under benchmarks/results/")
     parser.add_argument("--reuse", nargs="*", default=[], help="earlier results whose videos' fits are kept")
+    parser.add_argument("--tabulate", action="store_true", help="fit nothing: tabulate and plot the reused videos")
     args = parser.parse_args()
     if args.reuse and args.keep is None:
         parser.error("--reuse needs --keep: the folder that holds the earlier fits' subjects")
+    if args.tabulate and not args.reuse:
+        parser.error("--tabulate needs --reuse: the results to tabulate")
     args.reused = {
         row["video"]: row
         for name in args.reuse
@@ -232,6 +236,9 @@ def main() -> int:
     def save(row: dict) -> None:
         write_json(args.results, {"fit_options": args.fit_option, "videos": [*rows, row], "partial": True})
 
+    if args.tabulate:
+        rows = [bench_video(Path(name), name, work / name, args, save) for name in args.reused]
+        videos, args.turning, args.exercise = [], 0, 0
     try:
         for video in videos:
             rows.append(bench_video(video.resolve(), video.stem, work / video.stem, args, save))
@@ -247,7 +254,7 @@ def main() -> int:
         if args.keep is None:
             shutil.rmtree(work, ignore_errors=True)
     print_table(table_rows(rows))
-    if args.budgets:
+    if args.budgets or args.tabulate:
         print_table(budget_rows(rows))
         plot_budgets(rows, DOCS / f"{args.results}_budget.png")
     write_json(args.results, {"fit_options": args.fit_option, "videos": rows})

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Set up pghm on a fresh Debian machine: the system OpenGL libraries the GL paths need
-# (only when missing), a .venv with pghm, its test tools and the capture extra (mediapipe),
-# and the native splat kernel.
+# Set up pghm on a fresh Debian machine: the system OpenGL libraries the GL paths need and
+# Chromium, which the web page's test opens (only when missing), a .venv with pghm, its test
+# tools and the capture extra (mediapipe), and the native splat kernel.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -13,6 +13,7 @@ missing_system_packages() {
     ldconfig -p | grep -q 'libEGL_mesa.so.0 ' || missing+=(libegl-mesa0)
     ls /usr/lib/*/dri/swrast_dri.so >/dev/null 2>&1 || missing+=(libgl1-mesa-dri)
     command -v Xvfb >/dev/null || missing+=(xvfb)
+    command -v chromium >/dev/null || missing+=(chromium)  # the web page's browser test
     echo "${missing[@]}"
 }
 

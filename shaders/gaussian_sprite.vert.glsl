@@ -14,6 +14,9 @@
 // centre, so the caller widens the viewport by `guard` pixels on every side (the largest
 // point half side) and scissors to the image: a point whose centre is off the image but
 // whose square reaches into it is still drawn. gl_FragCoord stays the image pixel.
+// With PGHM_TRIANGLES defined, the quad is two triangles of a plain (not instanced) draw of 6
+// vertices a Gaussian (gl_VertexID / 6): SwiftShader, a browser's software WebGL, runs each
+// instance of an instanced draw as a draw of its own (the web page, pghm.web).
 //
 // Precision. The projection, t through the conic, is computed in `real`: float (#version
 // 330 core) or double (#version 400 core: OpenGL 4.0 / GL_ARB_gpu_shader_fp64), the latter
@@ -57,11 +60,14 @@ vec4 pixel_to_clip(vec2 pixel) {
 }
 
 void main() {
-#ifdef PGHM_POINTS
-    int index = int(texelFetch(draw_order, texel(gl_VertexID), 0).r);
+#if defined(PGHM_POINTS)
+    int sprite = gl_VertexID;
+#elif defined(PGHM_TRIANGLES)
+    int sprite = gl_VertexID / 6;
 #else
-    int index = int(texelFetch(draw_order, texel(gl_InstanceID), 0).r);
+    int sprite = gl_InstanceID;
 #endif
+    int index = int(texelFetch(draw_order, texel(sprite), 0).r);
     vec4 ms = texelFetch(mean_scale, texel(index), 0);
     vec4 co = texelFetch(color_opacity, texel(index), 0);
     real3 t = (world_to_camera * real4(real3(ms.xyz), 1.0)).xyz;
@@ -101,7 +107,13 @@ void main() {
     float l00 = sqrt(float(a));
     float l10 = float(b) / l00;
     float l11 = sqrt(max(float(c) - l10 * l10, 0.0));
-    vec2 w = (vec2(gl_VertexID & 1, gl_VertexID >> 1) * 2.0 - 1.0) * e;
+#ifdef PGHM_TRIANGLES
+    int vertex = gl_VertexID % 6;  // triangles (0, 1, 2) and (2, 1, 3) of the strip's corners
+    int corner = vertex < 3 ? vertex : (vertex == 5 ? 3 : 5 - vertex);
+#else
+    int corner = gl_VertexID;
+#endif
+    vec2 w = (vec2(corner & 1, corner >> 1) * 2.0 - 1.0) * e;
     gl_Position = pixel_to_clip(vec2(mean2d) + vec2(l00 * w.x, l10 * w.x + l11 * w.y));
 #endif
     centre = mean2d;

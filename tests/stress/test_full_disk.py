@@ -131,6 +131,12 @@ def test_an_avatar_on_a_full_disk_is_one_line(tiny_dataset, avatar_file, full, c
     expect_full(capsys, status, out, "export --out FULL/posed.ply", not out.exists())
 
 
+def test_a_web_page_on_a_full_disk_is_one_line(avatar_file, full, capsys):
+    out = full / "walk.html"
+    status = main(["export", str(avatar_file), "--web", str(out)])
+    expect_full(capsys, status, out, "export --web FULL/walk.html", not out.exists())
+
+
 @pytest.mark.gl
 def test_a_video_the_encoder_could_not_write_is_refused(avatar_file, full, capsys):
     out = full / "a.mp4"
