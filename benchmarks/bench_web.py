@@ -36,7 +36,7 @@ from pghm.io.avatar import load_avatar
 from pghm.motion.open_motion import open_motion
 from pghm.render.driver import AvatarDriver
 from pghm.render.frames import CPUFrames
-from pghm.render.framing import DEFAULT_FOV_Y, frame_points, orbit_camera
+from pghm.render.framing import DEFAULT_FOV_Y, floor_shift, frame_points, orbit_camera
 from pghm.web import export_web
 from pghm.web.bake import BAKE_ASPECT, SKIN_BONES, BakeConfig, compress, front_centre, sample_motion
 
@@ -65,8 +65,8 @@ def linear_pose_model(samples, values: np.ndarray) -> tuple[int, float]:
     """Numbers stored and worst-frame RMS error of x_f ~ A_i [vec(R_jk,f - I) for its bones, 1],
     least squares per Gaussian i over the frames."""
     frames, n, channels = values.shape
-    rotations = samples.transforms[:, :, :, :3] - np.eye(3, dtype=np.float32)  # (F, B, 3, 3)
-    features = rotations[:, samples.skin.index.astype(np.int64)].reshape(frames, n, -1)  # (F, N, 9 K)
+    rotations = samples.rig.transforms[:, :, :, :3] - np.eye(3, dtype=np.float32)  # (F, B, 3, 3)
+    features = rotations[:, samples.rig.skin.index.astype(np.int64)].reshape(frames, n, -1)  # (F, N, 9 K)
     design = np.concatenate([features, np.ones((frames, n, 1), np.float32)], axis=2).transpose(1, 0, 2)
     targets = values.transpose(1, 0, 2)  # (N, F, C)
     solution = np.linalg.pinv(design.astype(np.float64)) @ targets  # (N, 9 K + 1, C)
@@ -105,8 +105,7 @@ def references(driver, motion, shot: dict, renderer: CPUFrames) -> tuple[np.ndar
     framing = frame_points(rest, DEFAULT_FOV_Y, WIDTH / HEIGHT)
     bake_framing = frame_points(rest, DEFAULT_FOV_Y, BAKE_ASPECT)
     pose = motion.pose(shot["frame"])
-    shift = driver.root_position(pose) - driver.root_position(driver.rest_pose())
-    follow = np.array([shift[0], 0.0, shift[2]])
+    follow = floor_shift(driver.root_position(pose), driver.root_position(driver.rest_pose()))
     camera = orbit_camera(
         np.asarray(framing.target) + follow, shot["yaw"], shot.get("pitch", 0.0), framing.distance,
         DEFAULT_FOV_Y, WIDTH, HEIGHT,

@@ -18,7 +18,7 @@ from pghm.errors import EXIT_USER_ERROR
 from pghm.io.avatar import load_avatar
 from pghm.motion.open_motion import open_motion
 from pghm.render.driver import AvatarDriver
-from pghm.render.framing import DEFAULT_FOV_Y, frame_points, orbit_camera
+from pghm.render.framing import DEFAULT_FOV_Y, floor_shift, frame_points, orbit_camera
 from pghm.web import export_web
 from pghm.web.bake import (
     BAKE_ASPECT,
@@ -85,8 +85,7 @@ def test_the_bake_skins_to_the_models_gaussians(baked):
     rest_root = driver.root_position(driver.rest_pose())
     for frame in (0, 17, motion.num_frames - 1):
         pose = motion.pose(frame)
-        shift = driver.root_position(pose) - rest_root
-        target = np.asarray(framing.target) + [shift[0], 0.0, shift[2]]
+        target = np.asarray(framing.target) + floor_shift(driver.root_position(pose), rest_root)
         want = driver.evaluate(driver.avatar.identity_map(), pose, front_centre(target, framing.distance))
         rms = lambda error: math.sqrt((np.asarray(error, np.float64) ** 2).sum() / bake.num_gaussians)  # noqa: E731
         assert rms(bake.means(frame) - want.means) <= config.position_tolerance + 1e-6
@@ -118,13 +117,13 @@ def test_the_pages_skinning_shader_gives_the_bakes_means(baked):
             (bake.points.frame(frame), "3f", "canonical"),
             (bake.log_scales.frame(frame), "1f", "log_scale"),
             (bake.colors.frame(frame), "3f", "color"),
-            (bake.skin.index, "4u2", "bone_index"),
-            (bake.skin.weights, "4f1", "bone_weight")  # f1: normalised unsigned bytes,
+            (bake.rig.skin.index, "4u2", "bone_index"),
+            (bake.rig.skin.weights, "4f1", "bone_weight"),  # f1: normalised unsigned bytes
         ]
         content = [(ctx.buffer(np.ascontiguousarray(a).tobytes()), f, name) for a, f, name in attributes]
-        rows = -(-3 * bake.transforms.shape[1] // TEXTURE_WIDTH)
+        rows = -(-3 * bake.rig.transforms.shape[1] // TEXTURE_WIDTH)
         bones = np.zeros((rows * TEXTURE_WIDTH, 4), np.float32)
-        bones[: 3 * bake.transforms.shape[1]] = bake.transforms[frame].reshape(-1, 4)
+        bones[: 3 * bake.rig.transforms.shape[1]] = bake.rig.transforms[frame].reshape(-1, 4)
         texture = ctx.texture((TEXTURE_WIDTH, rows), 4, bones.tobytes(), dtype="f4")
         texture.filter = (moderngl.NEAREST, moderngl.NEAREST)
         texture.use(0)
@@ -177,8 +176,7 @@ def test_the_page_in_a_browser_draws_what_the_cpu_splatter_draws(baked, avatar_f
     renderer = CPUFrames()
     for shot in result["shots"]:
         pose = motion.pose(shot["frame"])
-        shift = driver.root_position(pose) - rest_root
-        follow = np.array([shift[0], 0.0, shift[2]])
+        follow = floor_shift(driver.root_position(pose), rest_root)
         baked_centre = front_centre(np.asarray(bake_framing.target) + follow, bake_framing.distance)
         arrays = driver.evaluate(driver.avatar.identity_map(), pose, baked_centre)
         camera = orbit_camera(

@@ -27,6 +27,7 @@ from pghm.errors import PghmError
 from pghm.motion.motion import Motion
 from pghm.motion.open_motion import REST, motion_names, open_motion
 from pghm.render import DEFAULT_FOV_Y, AvatarDriver, Framing, GaussianArrays, GaussianSet, frame_points
+from pghm.render.framing import floor_shift
 from pghm.uv.regions import RegionMap, region_map
 from viewer.camera import OrbitView
 from viewer.identity import IdentityEditor, IdentityState
@@ -185,8 +186,7 @@ class SceneSnapshot:
 
     def root_shift(self, pose: BodyPose) -> np.ndarray:
         """(3,) horizontal motion of the root from rest (cameras that follow the body add it)."""
-        shift = self.driver.root_position(pose) - self.rest_root
-        return np.array([shift[0], 0.0, shift[2]])
+        return floor_shift(self.driver.root_position(pose), self.rest_root)
 
     def camera_offset(self, frame: int) -> np.ndarray:
         """(3,) what the camera's target moves by at ``frame``: the root shift when following, else 0."""

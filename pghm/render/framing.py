@@ -48,6 +48,13 @@ def frame_points(points: np.ndarray, fov_y_degrees: float = DEFAULT_FOV_Y, aspec
     return Framing(target=tuple(float(c) for c in centre), distance=float(distance))
 
 
+def floor_shift(root: np.ndarray, rest_root: np.ndarray) -> np.ndarray:
+    """(3,) the root's move from ``rest_root`` across the floor (x and z; y kept at 0): what a camera
+    that follows the body adds to its target, so it keeps its height as the body bobs."""
+    shift = np.asarray(root, dtype=np.float64) - np.asarray(rest_root, dtype=np.float64)
+    return np.array([shift[0], 0.0, shift[2]])
+
+
 def orbit_camera(
     target: tuple[float, float, float] | np.ndarray,
     yaw_degrees: float,

@@ -22,7 +22,7 @@ from pghm.io.outputs import check_output
 from pghm.render.driver import AvatarDriver, GaussianSet
 from pghm.render.frame_cache import FrameCache, PackedFrame
 from pghm.render.frames import Backend, CPUFrames, frame_renderer
-from pghm.render.framing import DEFAULT_FOV_Y, frame_points, orbit_camera
+from pghm.render.framing import DEFAULT_FOV_Y, floor_shift, frame_points, orbit_camera
 from pghm.render.sinks import check_frame_size, open_sink, output_kind, to_uint8
 
 DEFAULT_SIZE = (640, 480)
@@ -184,8 +184,7 @@ def render_video(job: RenderJob, log: Callable[[str], None] = print) -> RenderSu
                 pose = motion.pose(spec.motion_frame) if motion is not None else driver.rest_pose()
                 target = np.asarray(framing.target, dtype=np.float64)
                 if job.follow:
-                    shift = driver.root_position(pose) - rest_root
-                    target = target + np.array([shift[0], 0.0, shift[2]])
+                    target = target + floor_shift(driver.root_position(pose), rest_root)
                 camera = orbit_camera(target, spec.yaw, job.pitch, framing.distance, DEFAULT_FOV_Y, width, height)
                 # The view-dependent colour is the only term that depends on the camera.
                 key = (spec.motion_frame, camera.centre.numpy().tobytes() if view_dependent else None)

@@ -112,15 +112,12 @@ class Skin:
 
 
 @dataclass(frozen=True)
-class BakedMotion:
-    """Everything the page draws, for N Gaussians over F frames.
+class MotionRig:
+    """What a page's frames share besides the Gaussians' attributes: the skinning and the camera's path.
 
     Attributes:
         skin: the Gaussians' bones and weights.
         transforms: (F, B, 3, 4) float32 the used bones' transforms per frame.
-        points: canonical points c_f (C = 3).
-        log_scales: natural logs of the scales (C = 1).
-        colors: RGB (C = 3).
         roots: (F, 3) float32 the posed root, which the page's camera follows.
         rest_root: (3,) the root at rest.
         rest_box: (2, 3) the rest surface's bounding box, low and high: the page's framing.
@@ -129,9 +126,6 @@ class BakedMotion:
 
     skin: Skin
     transforms: np.ndarray
-    points: Components
-    log_scales: Components
-    colors: Components
     roots: np.ndarray
     rest_root: np.ndarray
     rest_box: np.ndarray
@@ -141,15 +135,39 @@ class BakedMotion:
     def num_frames(self) -> int:
         return self.transforms.shape[0]
 
+    def skinned(self, index: int, points: np.ndarray) -> np.ndarray:
+        """(N, 3) float64 canonical ``points`` (N, 3) posed in frame ``index`` as the page skins them."""
+        blended = self.skin.blended(self.transforms[index])
+        return np.einsum("nij,nj->ni", blended[:, :, :3], points.astype(np.float64)) + blended[:, :, 3]
+
+
+@dataclass(frozen=True)
+class BakedMotion:
+    """Everything the page draws, for N Gaussians over F frames.
+
+    Attributes:
+        rig: the skinning and the camera's path.
+        points: canonical points c_f (C = 3).
+        log_scales: natural logs of the scales (C = 1).
+        colors: RGB (C = 3).
+    """
+
+    rig: MotionRig
+    points: Components
+    log_scales: Components
+    colors: Components
+
+    @property
+    def num_frames(self) -> int:
+        return self.rig.num_frames
+
     @property
     def num_gaussians(self) -> int:
         return self.points.mean.shape[0]
 
     def means(self, index: int) -> np.ndarray:
         """(N, 3) float64 frame ``index``'s posed means as the page skins them."""
-        blended = self.skin.blended(self.transforms[index])
-        point = self.points.frame(index).astype(np.float64)
-        return np.einsum("nij,nj->ni", blended[:, :, :3], point) + blended[:, :, 3]
+        return self.rig.skinned(index, self.points.frame(index))
 
 
 def skin_of(weights: torch.Tensor) -> Skin:
@@ -236,31 +254,23 @@ class MotionSamples:
     """The avatar in every frame of a motion, before compression: what :func:`compress` keeps.
 
     Attributes:
-        skin: the Gaussians' bones and weights.
-        transforms: (F, B, 3, 4) float32 the used bones' transforms per frame.
+        rig: the skinning and the camera's path.
         points: (F, N, 3) float32 canonical points c_f = M_f^{-1} mu_f.
         log_scales: (F, N, 1) float32.
         colors: (F, N, 3) float32 (view-dependent colour for the page's first camera).
-        roots: (F, 3) float32 the posed root.
-        rest_root, rest_box, fps: as :class:`BakedMotion`'s.
     """
 
-    skin: Skin
-    transforms: np.ndarray
+    rig: MotionRig
     points: np.ndarray
     log_scales: np.ndarray
     colors: np.ndarray
-    roots: np.ndarray
-    rest_root: np.ndarray
-    rest_box: np.ndarray
-    fps: float
 
 
 def sample_motion(driver, motion) -> MotionSamples:
     """Every frame of ``motion`` (a :class:`~pghm.motion.motion.Motion`) for the avatar ``driver``
     drives (:class:`~pghm.render.driver.AvatarDriver`), as the page skins it (module docstring)."""
     from pghm.device import move
-    from pghm.render.framing import DEFAULT_FOV_Y, frame_points
+    from pghm.render.framing import DEFAULT_FOV_Y, floor_shift, frame_points
 
     if motion.num_frames > MAX_WEB_FRAMES:
         raise PghmError(
@@ -283,8 +293,7 @@ def sample_motion(driver, motion) -> MotionSamples:
     for f in range(frames):
         pose = motion.pose(f)
         root = driver.root_position(pose)
-        shift = root - rest_root
-        target = np.asarray(framing.target) + np.array([shift[0], 0.0, shift[2]])
+        target = np.asarray(framing.target) + floor_shift(root, rest_root)
         arrays = driver.evaluate(identity_map, pose, front_centre(target, framing.distance))
         bones = geometry.transforms(move(pose, geometry.joints.device))[0, :, :3, :].cpu().numpy()
         transforms[f] = bones[skin.bones]
@@ -294,24 +303,18 @@ def sample_motion(driver, motion) -> MotionSamples:
         colors[f] = arrays.colors
         roots[f] = root
     box = np.stack([rest_points.min(axis=0), rest_points.max(axis=0)]).astype(np.float32)
-    return MotionSamples(
-        skin, transforms, points, log_scales, colors, roots, rest_root.astype(np.float32), box, float(motion.fps)
-    )
+    rig = MotionRig(skin, transforms, roots, rest_root.astype(np.float32), box, float(motion.fps))
+    return MotionSamples(rig, points, log_scales, colors)
 
 
 def compress(samples: MotionSamples, config: BakeConfig | None = None) -> BakedMotion:
     """``samples`` with each attribute group cut to the components its tolerance needs."""
     config = config or BakeConfig()
     return BakedMotion(
-        skin=samples.skin,
-        transforms=samples.transforms,
+        rig=samples.rig,
         points=components_of(samples.points, config.position_tolerance, config.max_components),
         log_scales=components_of(samples.log_scales, config.log_scale_tolerance, config.max_components),
         colors=components_of(samples.colors, config.color_tolerance, config.max_components),
-        roots=samples.roots,
-        rest_root=samples.rest_root,
-        rest_box=samples.rest_box,
-        fps=samples.fps,
     )
 
 

@@ -74,25 +74,27 @@ def page_data(baked: BakedMotion, title: str) -> dict:
     """The page's JSON block (module docstring)."""
     from pghm.gl.resources import SPEC_DEFINES, TEXTURE_WIDTH
 
+    rig = baked.rig
+
     return {
         "format": FORMAT,
         "title": title,
         "gaussians": baked.num_gaussians,
         "frames": baked.num_frames,
-        "fps": baked.fps,
+        "fps": rig.fps,
         "camera": {"fov_y": DEFAULT_FOV_Y, "body_fill": BODY_FILL, "bake_aspect": BAKE_ASPECT},
         "texture_width": TEXTURE_WIDTH,
         "weight_steps": WEIGHT_STEPS,
         "shaders": web_shaders(),
         "spec": {name: SPEC_DEFINES[name] for name in SPEC_CONSTANTS},
-        "skin": {"index": encode(baked.skin.index), "weights": encode(baked.skin.weights)},
-        "transforms": encode(baked.transforms),
+        "skin": {"index": encode(rig.skin.index), "weights": encode(rig.skin.weights)},
+        "transforms": encode(rig.transforms),
         "points": _group(baked.points),
         "log_scales": _group(baked.log_scales),
         "colors": _group(baked.colors),
-        "roots": encode(baked.roots),
-        "rest_root": baked.rest_root.tolist(),
-        "rest_box": baked.rest_box.tolist(),
+        "roots": encode(rig.roots),
+        "rest_root": rig.rest_root.tolist(),
+        "rest_box": rig.rest_box.tolist(),
     }
 
 

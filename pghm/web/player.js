@@ -5,8 +5,8 @@
 //      principal components times the frame's coefficients (a few multiply-adds a value);
 //   2. linear blend skinning on the GPU (shaders/web_skinning.vert.glsl, transform feedback):
 //      mu = M c, M = sum_k w_k B_jk with the frame's bone transforms;
-//   3. the order front to back, depths in float64 from the camera's float32 matrix, as the CPU
-//      splatter sorts (pghm.splat);
+//   3. the order front to back: depths in float64 from the camera's float32 matrix, as the CPU
+//      splatter computes them (pghm.splat), sorted by their float32 rounding;
 //   4. the viewer's sprites (shaders/gaussian_sprite.*.glsl) into a float target with the
 //      front-to-back blend (ONE_MINUS_DST_ALPHA, ONE), then the background under them
 //      (shaders/composite.frag.glsl).
@@ -174,7 +174,6 @@
   const orderTexture = texture(W_TEX, ROWS, gl.R32F, gl.FLOAT);
   const orderValues = new Float32Array(ROWS * W_TEX);
   const order = new Uint32Array(N);
-  const depth = new Float64Array(N);
   const emptyVao = gl.createVertexArray();
   let accum = null; // {texture, framebuffer, width, height}
 
@@ -218,7 +217,7 @@
     gl.bindBuffer(gl.COPY_READ_BUFFER, null);
   }
 
-  // Front to back: an LSD radix sort on the depths as float32 bit patterns made monotonic
+  // Front to back: an LSD radix sort on the depths (keyBits) as float32 bit patterns made monotonic
   // (negative: all bits flipped; positive: the sign bit set), four passes of 8 bits, stable, so
   // equal keys keep the index order. float32 keys order depths the CPU splatter's float64 ones
   // order alike except within 1e-7 of each other, sub-micrometre at a few metres.
@@ -228,7 +227,6 @@
   const sortedOrder = new Uint32Array(N);
   const counts = new Uint32Array(256);
   function sortByDepth() {
-    for (let i = 0; i < N; i++) keyBits[i] = depth[i];
     for (let i = 0; i < N; i++) keys[i] = keys[i] & 0x80000000 ? ~keys[i] >>> 0 : (keys[i] | 0x80000000) >>> 0;
     let fromKeys = keys, fromOrder = order, toKeys = sortedKeys, toOrder = sortedOrder;
     for (let shift = 0; shift < 32; shift += 8) {
@@ -256,15 +254,13 @@
     const [cx, cy] = cam.principal;
     const limitX = (SPEC.FRUSTUM_CLAMP * width) / (2 * f);
     const limitY = (SPEC.FRUSTUM_CLAMP * height) / (2 * f);
-    let low = [Infinity, Infinity];
-    let high = [-Infinity, -Infinity];
-    let half = 0;
+    let [left, top, right, bottom, half] = [Infinity, Infinity, -Infinity, -Infinity, 0];
     for (let i = 0; i < N; i++) {
       const x = meanScale[4 * i];
       const y = meanScale[4 * i + 1];
       const z = meanScale[4 * i + 2];
       const tz = m[8] * x + m[9] * y + m[10] * z + m[11];
-      depth[i] = tz;
+      keyBits[i] = tz; // the sort key: the depth rounded to float32
       order[i] = i;
       if (!(tz > SPEC.NEAR_PLANE)) continue;
       const tx = m[0] * x + m[1] * y + m[2] * z + m[3];
@@ -277,17 +273,19 @@
       const r = RADIUS * Math.sqrt(Math.max(a, c));
       const u = (f * tx) / tz + cx;
       const v = (f * ty) / tz + cy;
-      low = [Math.min(low[0], u - r), Math.min(low[1], v - r)];
-      high = [Math.max(high[0], u + r), Math.max(high[1], v + r)];
+      left = Math.min(left, u - r);
+      top = Math.min(top, v - r);
+      right = Math.max(right, u + r);
+      bottom = Math.max(bottom, v + r);
       half = Math.max(half, r);
     }
     sortByDepth();
     for (let i = 0; i < N; i++) orderValues[i] = order[i];
     upload(orderTexture, W_TEX, ROWS, gl.RED, orderValues);
-    const x0 = Math.max(0, Math.floor(low[0]));
-    const y0 = Math.max(0, Math.floor(low[1]));
-    const x1 = Math.min(width, Math.ceil(high[0]) + 1);
-    const y1 = Math.min(height, Math.ceil(high[1]) + 1);
+    const x0 = Math.max(0, Math.floor(left));
+    const y0 = Math.max(0, Math.floor(top));
+    const x1 = Math.min(width, Math.ceil(right) + 1);
+    const y1 = Math.min(height, Math.ceil(bottom) + 1);
     return { box: x1 > x0 && y1 > y0 ? [x0, y0, x1 - x0, y1 - y0] : null, half };
   }
 
