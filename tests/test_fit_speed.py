@@ -281,7 +281,7 @@ def test_a_coarse_sample_averages_its_pixels_and_scales_its_camera(tiny_dataset)
     unevenly by the pixel grid moves a centroid by at most q R / (1 - q) = 0.0144 sigma; sigma is
     2.1 pixels at full resolution (0.06 m at 2 m, fx 70), so 0.03 pixel each, 0.06 both. A wrong
     pixel-centre convention would be off by half a pixel."""
-    from pghm.train.pose_refine import COARSE_FACTOR, coarse_sample
+    from pghm.train.coarse import COARSE_FACTOR, coarse_sample
 
     sample = TrainingData(tiny_dataset / "subject_000").load(0, 0)
     coarse = coarse_sample(sample)

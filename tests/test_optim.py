@@ -1,8 +1,10 @@
 """LazyAdam against torch.optim.Adam: dense groups equal it, lazy rows equal it run per row; pose corrections."""
 
+import pytest
 import torch
 
 from pghm.train.data import PoseCorrections
+from pghm.train.loop import decay_factor
 from pghm.train.optim import LazyAdam
 
 STEPS = 12
@@ -131,3 +133,15 @@ def test_the_masked_lazy_update_is_the_gathered_one_bit_for_bit():
                 update(table, state, group)
     assert torch.equal(tables[0], tables[1])
     assert all(torch.equal(states[0][k], states[1][k]) for k in states[0])
+
+
+def test_decay_is_one_then_a_half_cosine_to_zero():
+    steps = 200
+    assert [decay_factor(step, steps, 0.0) for step in (0, 100, 199)] == [1.0, 1.0, 1.0]
+    factors = [decay_factor(step, steps, 0.25) for step in range(steps)]
+    assert factors[:150] == [1.0] * 150  # the first three quarters undecayed
+    assert all(a > b for a, b in zip(factors[150:], factors[151:]))  # then strictly falling
+    assert factors[175] == pytest.approx(0.5)  # half way down at the decay's middle: cos(pi / 2) = 0
+    assert 0.0 < factors[-1] < 1e-3  # the last step still moves, by (1 - cos(pi / 50)) / 2 of the rate
+    whole = [decay_factor(step, steps, 1.0) for step in range(steps)]
+    assert whole[0] == 1.0 and sum(whole) == pytest.approx(steps / 2, abs=1)  # the mean of a half cosine

@@ -144,10 +144,13 @@ def test_fit_detail_stage_trains_only_the_layer_and_saves_it(tiny_dataset, prior
     assert loaded.model.detail.maps[0][:, unused].abs().max() == 0
 
 
-def test_resume_gives_the_same_parameters(tiny_dataset, tmp_path, monkeypatch):
+@pytest.mark.parametrize("decay", [0.0, 1.0])
+def test_resume_gives_the_same_parameters(tiny_dataset, tmp_path, monkeypatch, decay):
+    """Also with decaying rates: the resumed stage continues their schedule from the configured rates,
+    not from the decayed ones its checkpoint's optimizer holds."""
     from pghm.train.data import TrainingData
 
-    straight = train_prior(tiny_dataset, tmp_path / "straight.pt", prior_config(steps=6))
+    straight = train_prior(tiny_dataset, tmp_path / "straight.pt", prior_config(steps=6, decay=decay))
     assert not (tmp_path / "straight.pt.ckpt").exists()  # a finished run leaves only its result
     plan = TrainingData.plan
 
@@ -159,8 +162,8 @@ def test_resume_gives_the_same_parameters(tiny_dataset, tmp_path, monkeypatch):
     with monkeypatch.context() as patch:
         patch.setattr(TrainingData, "plan", interrupted_at_step_3)
         with pytest.raises(KeyboardInterrupt):
-            train_prior(tiny_dataset, tmp_path / "resumed.pt", prior_config(steps=6))
-    resumed = train_prior(tiny_dataset, tmp_path / "resumed.pt", prior_config(steps=6), resume=True)
+            train_prior(tiny_dataset, tmp_path / "resumed.pt", prior_config(steps=6, decay=decay))
+    resumed = train_prior(tiny_dataset, tmp_path / "resumed.pt", prior_config(steps=6, decay=decay), resume=True)
     for (name, a), (_, b) in zip(straight.model.state_dict().items(), resumed.model.state_dict().items()):
         # The same batches and optimizer state: equal up to float reassociation in threaded kernels.
         torch.testing.assert_close(a, b, atol=1e-6, rtol=1e-5, msg=name)

@@ -77,6 +77,19 @@ def _loop_arguments(parser: argparse.ArgumentParser, prefix: str, defaults: Loop
         default=defaults.images_per_shard,
         help="images per identity group (default %(default)s)",
     )
+    parser.add_argument(
+        f"--{prefix}decay",
+        type=Real(0.0, 1.0),
+        default=defaults.decay,
+        help="share of the last steps over which the learning rates fall to zero as a half cosine; "
+        "0: constant (default %(default)s)",
+    )
+    parser.add_argument(
+        f"--{prefix}coarse",
+        type=Real(0.0, 1.0),
+        default=defaults.coarse,
+        help="share of the first steps that render each image at half its resolution; 0: none (default %(default)s)",
+    )
 
 
 def _common(parser: argparse.ArgumentParser, loop: LoopConfig) -> None:
@@ -273,6 +286,8 @@ def cmd_train_prior(args: argparse.Namespace) -> int:
         images_per_shard=args.images,
         seed=args.seed,
         checkpoint_every=args.checkpoint_every,
+        decay=args.decay,
+        coarse=args.coarse,
         loss=LossWeights(pose_prior=args.pose_prior, silhouette=args.silhouette),
         background=args.background,
     )
@@ -310,10 +325,15 @@ def cmd_fit(args: argparse.Namespace) -> int:
             images_per_shard=images,
             seed=args.seed,
             checkpoint_every=args.checkpoint_every,
+            decay=decay,
+            coarse=coarse,
             loss=LossWeights(pose_prior=args.pose_prior, silhouette=args.silhouette),
             background=args.background,
         )
-        for steps, images in ((args.stage1_steps, args.stage1_images), (args.stage2_steps, args.stage2_images))
+        for steps, images, decay, coarse in (
+            (args.stage1_steps, args.stage1_images, args.stage1_decay, args.stage1_coarse),
+            (args.stage2_steps, args.stage2_images, args.stage2_decay, args.stage2_coarse),
+        )
     ]
     config = FitConfig(
         stage1=stages[0],
@@ -324,7 +344,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         early_track_steps=args.early_track_steps,
         held_out_steps=args.held_out_steps,
         uv_resolution=args.uv_resolution,
-        detail=replace(stages[1], steps=args.detail_steps),
+        detail=replace(stages[1], steps=args.detail_steps, decay=FitConfig().detail.decay, coarse=0.0),
         detail_validation=args.detail_validation,
         lpips=not args.no_lpips,
         body_model_path=args.body_model_path,

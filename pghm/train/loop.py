@@ -39,6 +39,7 @@ from pghm.model.pghm import PGHM, AvatarOutput
 from pghm.splat import Camera, render
 from pghm.train import distributed, profile
 from pghm.train.background import BACKGROUND_KINDS, BLACK, WHITE, composite_render, composite_target, draw_backgrounds
+from pghm.train.coarse import coarse_sample, halves
 from pghm.train.data import PoseCorrections, Sample, TrainingData
 from pghm.train.losses import LossWeights, objective, psnr, silhouette
 from pghm.train.plan import Budget
@@ -84,14 +85,40 @@ class LoopConfig:
     loss: LossWeights = field(default_factory=LossWeights)
     progress: bool = True
     """A tqdm bar of the stage's steps on stderr (rank 0's)."""
+    decay: float = 0.0
+    """Share of the stage's last steps over which every learning rate falls to zero as a half
+    cosine (:func:`decay_factor`); 0: constant rates."""
+    coarse: float = 0.0
+    """Share of the stage's first steps that render and score each image at half its resolution
+    (:mod:`pghm.train.coarse`): a quarter of the pixels; 0: every step at full resolution."""
     background: str = "white"
     """What the targets are composited on and the renders drawn on, one of
     :data:`pghm.train.background.BACKGROUND_KINDS`: ``white`` (the paper's stored targets) or a
     background drawn per image and step (``colour``, ``gradient``)."""
 
     def __post_init__(self) -> None:
+        for name in ("decay", "coarse"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and 0.0 <= value <= 1.0):
+                raise PghmError(f"{name} must be a share of the steps from 0 to 1, got {value!r}")
         if self.background not in BACKGROUND_KINDS:
             raise PghmError(f"background must be one of {', '.join(BACKGROUND_KINDS)}, got {self.background!r}")
+
+
+def decay_factor(step: int, steps: int, share: float) -> float:
+    """The learning rates' factor at ``step`` (0-based) of ``steps`` when the last ``share`` of them decay:
+
+        f = 1                              for step < s0 = (1 - share) steps
+        f = (1 + cos(pi t)) / 2,  t = (step - s0) / (steps - s0)   after,
+
+    so f falls from 1 to just above 0 at the last step. Adam's constant rate leaves the parameters
+    jittering by about that rate around their optimum; annealing it lets them settle there, which is
+    what makes a short stage as good as a longer constant one (docs/training.md, "Steps and rates").
+    """
+    start = (1.0 - share) * steps
+    if share <= 0.0 or step < start:
+        return 1.0
+    return 0.5 * (1.0 + math.cos(math.pi * (step - start) / (steps - start)))
 
 
 def distinct_frames(samples: list[Sample]) -> list[int]:
@@ -458,17 +485,18 @@ def run_stage(
     world, rank = distributed.world_size(), distributed.rank()
     if config.shards % world:
         raise PghmError(f"--shards {config.shards} is not a multiple of the {world} processes")
-    base_lrs = [group["lr"] for group in optimizer.param_groups]
-    for lr in base_lrs:
-        check_learning_rate("learning rate", lr)
+    # The configured rates, kept in the groups so that a resumed optimizer restores them unscaled.
+    for group in optimizer.param_groups:
+        group.setdefault("initial_lr", group["lr"])
+        check_learning_rate("learning rate", group["initial_lr"])
     module = distributed.wrap(objective)
     data.bad.update(state.bad_images)
 
     def set_lr() -> None:
-        for group, lr in zip(optimizer.param_groups, base_lrs):
-            group["lr"] = lr * state.lr_scale
+        factor = state.lr_scale * decay_factor(state.step, steps, config.decay)
+        for group in optimizer.param_groups:
+            group["lr"] = group["initial_lr"] * factor
 
-    set_lr()
     steps = config.steps if budget is None else budget.steps(state.step)
     progress = tqdm(
         total=steps,
@@ -481,6 +509,7 @@ def run_stage(
     started = time.perf_counter() - state.seconds
     try:
         while state.step < steps:
+            set_lr()
             plan = data.plan(config.seed, state.step, config.shards, config.images_per_shard, config.same_instant)
             mine = plan[rank::world]
             optimizer.zero_grad(set_to_none=False)
@@ -491,6 +520,8 @@ def run_stage(
                     samples = data.load_group(identity, images)
                     if not samples:
                         continue
+                    if state.step < config.coarse * steps and halves(samples):
+                        samples = [coarse_sample(sample) for sample in samples]
                     # Drawn from the group's place in the global plan, whichever process computes it.
                     backgrounds = draw_backgrounds(
                         config.background,
@@ -531,7 +562,6 @@ def run_stage(
             if not finite:
                 state.skipped_steps += 1
                 state.lr_scale *= LR_BACKOFF
-                set_lr()
                 log.warning(
                     "step %d: non-finite loss, gradient or update; step skipped, learning rate x%.2f (now scale %.3g)",
                     state.step,

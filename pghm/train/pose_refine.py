@@ -31,11 +31,9 @@ from __future__ import annotations
 import copy
 import logging
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import replace
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 from tqdm import tqdm
 
@@ -46,12 +44,11 @@ from pghm.model.geometry import SubjectGeometry
 from pghm.model.pghm import AvatarOutput, IdentityFeatures, PoseBranch
 from pghm.train import profile
 from pghm.train.background import TRAINING_BACKGROUND, draw_backgrounds
-from pghm.splat import Camera
+from pghm.train.coarse import coarse_sample, halves
 from pghm.train.data import PoseCorrections, Sample, TrainingData
 from pghm.train.loop import AvatarObjective, all_finite
 from pghm.train.losses import LossWeights
 from pghm.train.optim import LazyAdam
-from pghm.train.person_crop import Crop
 from pghm.train.pose_track import frame_numbers
 
 log = logging.getLogger(__name__)
@@ -60,14 +57,6 @@ IMAGES_PER_BATCH = 2
 """Images rendered together in one forward pass (the fit's batch): memory, not the result."""
 REFINE_SEED_SALT = 0x7E57
 """Keeps the refinement's background draws apart from the fit's (same seed, same step)."""
-COARSE_FACTOR = 2
-"""A coarse step's image is this many times smaller on each side: a pose's error is an outline
-displaced by pixels, which half the resolution still shows, at a quarter of the pixels."""
-COARSE_MIN_SIDE = 64
-"""Smallest side of a coarse image, in pixels: below it the coarse steps keep the full resolution.
-A small image halved leaves the person a few SSIM windows across, whose gradients mislead the
-pose (the 64-pixel test subject's settled track ends further off)."""
-
 
 class HeldAppearance(AvatarObjective):
     """The objective with the network's maps held at a batch's starting poses.
@@ -104,32 +93,6 @@ class HeldAppearance(AvatarObjective):
             self._held = (branch, view)
         branch, view = self._held
         return model.assemble(self._features, skinned.select(pose_index), branch, view, geometry)
-
-
-def coarse_sample(sample: Sample, factor: int = COARSE_FACTOR) -> Sample:
-    """``sample`` at 1/``factor`` of its resolution: image and mask averaged over factor x factor
-    blocks (a last row or column that fills no block dropped), the camera's focal lengths and
-    principal point divided by ``factor`` (pixel i's centre is at i + 1/2, so coarse pixel i covers
-    fine pixels factor i .. factor i + factor - 1 exactly), and the crop's box likewise."""
-    camera = sample.camera
-    height, width = camera.height // factor, camera.width // factor
-
-    def pooled(image: Tensor) -> Tensor:
-        return F.avg_pool2d(image[None, :, : height * factor, : width * factor], factor)[0]
-
-    fx, fy, cx, cy = (value / factor for value in (camera.fx, camera.fy, camera.cx, camera.cy))
-    coarse = Camera(fx, fy, cx, cy, width, height, camera.world_to_camera)
-    crop = sample.crop
-    if crop is not None:
-        frame = (crop.frame_width // factor, crop.frame_height // factor)
-        crop = Crop(crop.x0 // factor, crop.y0 // factor, width, height, *frame)
-    return replace(sample, image=pooled(sample.image), mask=pooled(sample.mask), camera=coarse, crop=crop)
-
-
-def _halves(samples: list[Sample]) -> bool:
-    """Whether the coarse steps of these (one or more) images render at a lower resolution (:data:`COARSE_MIN_SIDE`)."""
-    camera = samples[0].camera
-    return min(camera.width, camera.height) // COARSE_FACTOR >= COARSE_MIN_SIDE
 
 
 def _one_view_per_frame(data: TrainingData, images: list[int]) -> bool:
@@ -261,7 +224,7 @@ class _Settling:
             self.bar.update(steps)
             return
         with profile.part(profile.DATA):
-            coarse = [coarse_sample(sample) for sample in samples] if coarse_steps and _halves(samples) else samples
+            coarse = [coarse_sample(sample) for sample in samples] if coarse_steps and halves(samples) else samples
         if self.held:
             objective.release()
         parameters = list(objective.corrections.parameters())
