@@ -31,6 +31,7 @@ from pghm.train import loop as loop_module
 from pghm.train import run_setup
 from pghm.train.frames import on_background
 from pghm.train.fit import FitConfig, fit
+from pghm.train.data import TrainingData
 from pghm.train.loop import LoopConfig
 from pghm.train.losses import TargetSsim, image_losses, psnr, silhouette
 from pghm.train.lpips import LPIPS
@@ -273,3 +274,18 @@ def test_render_and_export_on_the_device_are_the_cpus(tiny_dataset, avatar_files
             assert main([*export, "--out", str(tmp_path / f"{device}.ply"), "--device", device]) == 0
     assert (tmp_path / "cuda.png").read_bytes() == (tmp_path / "cpu.png").read_bytes()
     assert (tmp_path / "cuda.ply").read_bytes() == (tmp_path / "cpu.ply").read_bytes()
+
+
+def test_a_coarse_image_on_the_device_is_its_own_sample(tiny_dataset):
+    """The device keeps each sample once, so a coarse step's image (half the size) and the same image
+    at full resolution must be two entries: either one in the other's place renders the wrong size."""
+    from pghm.train.coarse import coarse_sample
+    from pghm.train.resident import Resident
+
+    full = TrainingData(tiny_dataset / SUBJECT).load(0, 0)
+    coarse = coarse_sample(full)
+    with standin_cuda():
+        resident = Resident(CUDA)
+        for sample in (coarse, full, coarse):
+            kept = resident.sample(sample)
+            assert kept.image.shape == sample.image.shape and kept.camera.width == sample.camera.width

@@ -635,3 +635,26 @@ def test_a_fit_interrupted_after_a_stage_resumes_to_the_same_avatar(
     for key, value in straight["pose_track"].items():
         other = resumed["pose_track"][key]
         assert value == other if isinstance(value, str) else torch.equal(value, other)
+
+
+def test_a_stages_coarse_steps_render_at_half_the_resolution_then_full(tiny_dataset, tmp_path, monkeypatch):
+    """--coarse 0.5 of 4 steps: steps 0 and 1 see every image halved (and its camera with it), 2 and 3 whole."""
+    from pghm.train import coarse
+    from pghm.train.loop import AvatarObjective
+
+    monkeypatch.setattr(coarse, "COARSE_MIN_SIDE", 8)  # the tiny subject's 64-pixel images halve
+    seen = []
+    forward = AvatarObjective.forward
+
+    def recording(self, samples, *rest):
+        seen.append({(s.image.shape[1:], (s.camera.height, s.camera.width)) for s in samples})
+        return forward(self, samples, *rest)
+
+    monkeypatch.setattr(AvatarObjective, "forward", recording)
+    train_prior(tiny_dataset, tmp_path / "coarse.pt", prior_config(steps=4, coarse=0.5))
+    full = TrainingData(tiny_dataset / "subject_000").load(0, 0).image.shape[1:]
+    half = tuple(side // 2 for side in full)
+    per_step = len(seen) // 4
+    for step in range(4):
+        (size, camera), *others = set().union(*seen[step * per_step : (step + 1) * per_step])
+        assert not others and tuple(size) == tuple(camera) == (half if step < 2 else tuple(full)), step

@@ -23,15 +23,15 @@ class Resident:
 
     def __init__(self, device: torch.device) -> None:
         self.device = device
-        self._samples: dict[tuple[int, int], Sample] = {}
+        self._samples: dict[tuple[int, ...], Sample] = {}
         self._indices: dict[int, Tensor] = {}
-        self._areas: dict[tuple[int, int], Tensor] = {}
+        self._areas: dict[tuple[int, ...], Tensor] = {}
 
     def sample(self, sample: Sample) -> Sample:
         """``sample`` with its tensors on the device (the same sample each later visit)."""
         if self.device.type == "cpu":
             return sample
-        key = (sample.identity, sample.image_index)
+        key = _key(sample)
         if key not in self._samples:
             self._samples[key] = move(sample, self.device)
         return self._samples[key]
@@ -49,8 +49,13 @@ class Resident:
         if not any(s.crop for s in samples):
             return None
         for s in samples:
-            key = (s.identity, s.image_index)
-            if key not in self._areas:
-                self._areas[key] = area_tensor([s.crop]).to(self.device)[0]
-        return torch.stack([self._areas[(s.identity, s.image_index)] for s in samples])
+            if _key(s) not in self._areas:
+                self._areas[_key(s)] = area_tensor([s.crop]).to(self.device)[0]
+        return torch.stack([self._areas[_key(s)] for s in samples])
+
+
+def _key(sample: Sample) -> tuple[int, ...]:
+    """A sample's identity, image and resolution: a coarse step's image (:mod:`pghm.train.coarse`) is
+    another sample than the same image at full resolution."""
+    return sample.identity, sample.image_index, sample.camera.width, sample.camera.height
 
