@@ -9,6 +9,7 @@ import pytest
 from pghm.train import plan as plan_module
 from pghm.train.plan import (
     CALIBRATION_STEPS,
+    COARSE_STEP_COST,
     COST_RATIOS,
     DETAIL,
     EARLY_SETTLING,
@@ -26,9 +27,9 @@ from pghm.train.plan import (
 )
 
 DEFAULT = [
-    Phase(STAGE1, 50),
+    Phase(STAGE1, 50, coarse=1.0),
     Phase(EARLY_SETTLING, 20, 35),
-    Phase(STAGE2, 450),
+    Phase(STAGE2, 450, coarse=2 / 3),
     Phase(POSE_SETTLING, 0, 35),
     Phase(HELD_OUT, 90, 5),
     Phase(DETAIL, 100),
@@ -118,13 +119,25 @@ class Clock:
         return self.now
 
 
+def test_a_stages_coarse_steps_count_their_share_of_a_full_step():
+    stage = Phase(STAGE2, 450, coarse=2 / 3)
+    assert stage.work(450) == pytest.approx(300 * COARSE_STEP_COST + 150)
+    assert stage.work(100) == pytest.approx(100 * COARSE_STEP_COST) and stage.work(0) == 0
+    costs = CostModel(reference_step=0.5)
+    assert costs.seconds_left(stage, 300) == pytest.approx(150 * 0.5)  # the fine steps are left
+    costs.record(STAGE2, 200, 200 * 0.3, work=stage.work(200))  # coarse steps at 0.3 s each
+    assert costs.unit_seconds(STAGE2) == pytest.approx(0.3 / COARSE_STEP_COST)  # a full step's
+
+
+@pytest.mark.parametrize("coarse_cost", [0.5, 0.9])
 @pytest.mark.parametrize("speed", [0.3, 1.0, 3.0])
 @pytest.mark.parametrize("minutes", [2, 5, 10])
-def test_a_simulated_fit_ends_within_its_budget(monkeypatch, speed, minutes):
+def test_a_simulated_fit_ends_within_its_budget(monkeypatch, speed, minutes, coarse_cost):
     """Each unit of each phase costs its ratio times a true step cost that the plan's reference
-    misses by ``speed`` (0.3 to 3 times), plus 5 % per-phase noise in the ratios; the fit runs
-    its stages step by step as the loop does, asking the plan after each: it ends within 15 % of
-    the budget (docs: the fit's --minutes target on an idle machine)."""
+    misses by ``speed`` (0.3 to 3 times), plus 5 % per-phase noise in the ratios, and a stage's
+    coarse step ``coarse_cost`` of a full one where the plan assumes :data:`COARSE_STEP_COST`; the
+    fit runs its stages step by step as the loop does, asking the plan after each: it ends within
+    15 % of the budget (docs: the fit's --minutes target on an idle machine)."""
     clock = Clock()
     monkeypatch.setattr(plan_module.time, "perf_counter", clock)
     true_step = plan_module.REFERENCE_STEP_SECONDS * speed
@@ -138,8 +151,8 @@ def test_a_simulated_fit_ends_within_its_budget(monkeypatch, speed, minutes):
         unit = COST_RATIOS[name] * noise[name] * true_step
         if name in (STAGE1, STAGE2, DETAIL):
             done = 0
-            while done < budget.steps(done):
-                clock.now += unit
+            while done < (steps := budget.steps(done)):
+                clock.now += unit * (coarse_cost if done < phase.coarse * steps else 1.0)
                 done += 1
                 budget.progress(done)
         else:

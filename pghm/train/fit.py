@@ -540,9 +540,9 @@ def fit_phases(run: FitRun) -> list[Phase]:
     config, training = run.config, len(run.data.images[0])
     poses = run.corrections is not None
     return [
-        Phase(STAGE1, config.stage1.steps),
+        Phase(STAGE1, config.stage1.steps, coarse=config.stage1.coarse),
         Phase(EARLY_SETTLING, config.early_track_steps if poses else 0, training),
-        Phase(STAGE2, config.stage2.steps),
+        Phase(STAGE2, config.stage2.steps, coarse=config.stage2.coarse),
         Phase(POSE_SETTLING, config.track_steps if run.settles_poses else 0, training),
         Phase(HELD_OUT, config.held_out_steps if run.settles_poses else 0, run.held_out_images),
         Phase(DETAIL, 0 if detail_refusal(config, run.data) else config.detail.steps),

@@ -65,6 +65,10 @@ MIN_STAGE_SCALE = 0.1
 2-minute budget leaves the stages on a machine 3 times slower than the reference."""
 MAX_STAGE_SCALE = 40.0
 """Most stage steps a budget plans, as a multiple of the config's."""
+COARSE_STEP_COST = 0.7
+"""A coarse stage step's seconds (:mod:`pghm.train.coarse`: a quarter of the pixels, the same
+network) over a full-resolution one's, until the stage's own steps say otherwise: the splatting and
+the losses are about two fifths of a stage-2 step on a capture (docs/training.md, "Speed")."""
 MIN_DETAIL_SHARE = 0.4
 """Least share of the detail stage's steps a budget plans rather than none: at the default 100,
 40 steps, two of its validations (every 20); on the synthetic turn its best layer came at step 40
@@ -74,15 +78,23 @@ and bought 0.8 dB (benchmarks/results/bench_real_budget.json)."""
 @dataclass(frozen=True)
 class Phase:
     """One phase of a plan: ``steps`` optimisation steps (a settling pass: steps per frame) over
-    ``frames`` frames each (1 for a stage); its size is ``steps * frames`` units."""
+    ``frames`` frames each (1 for a stage); its size is ``steps * frames`` units. A stage's first
+    ``coarse`` share of steps are coarse, each :data:`COARSE_STEP_COST` of a full step's work."""
 
     name: str
     steps: int
     frames: int = 1
+    coarse: float = 0.0
 
     @property
     def units(self) -> int:
         return self.steps * self.frames
+
+    def work(self, units: int) -> float:
+        """The first ``units`` units in full steps' worth: the coarse ones (the step numbers below
+        ``coarse * steps``, as the loop counts them) at :data:`COARSE_STEP_COST` each."""
+        coarse = min(units, math.ceil(self.coarse * self.steps))
+        return COARSE_STEP_COST * coarse + (units - coarse)
 
 
 class CostModel:
@@ -93,14 +105,18 @@ class CostModel:
         self.seconds: dict[str, float] = {}
         self.units: dict[str, int] = {}
 
-    def record(self, name: str, units: int, seconds: float) -> None:
-        """A phase has run ``units`` units in ``seconds`` so far (its totals, not increments)."""
+        self.work: dict[str, float] = {}
+
+    def record(self, name: str, units: int, seconds: float, work: float | None = None) -> None:
+        """A phase has run ``units`` units, ``work`` full units' worth (:meth:`Phase.work`; default
+        ``units``), in ``seconds`` so far (its totals, not increments)."""
         self.units[name], self.seconds[name] = units, seconds
+        self.work[name] = units if work is None else work
 
     def measured(self, name: str) -> float | None:
-        """The phase's own mean seconds per unit, once it has run :data:`CALIBRATION_STEPS` units."""
+        """The phase's own mean seconds per full unit, once it has run :data:`CALIBRATION_STEPS` units."""
         units = self.units.get(name, 0)
-        return self.seconds[name] / units if units >= CALIBRATION_STEPS else None
+        return self.seconds[name] / self.work[name] if units >= CALIBRATION_STEPS else None
 
     def step_seconds(self, like: str = STAGE2) -> float:
         """The stage-2 step's cost as a phase of the kind of ``like`` predicts it: the latest measured
@@ -120,7 +136,8 @@ class CostModel:
 
     def seconds_left(self, phase: Phase, done: int = 0) -> float:
         """Seconds ``phase`` still needs with ``done`` of its units run."""
-        return max(phase.units - done, 0) * self.unit_seconds(phase.name)
+        left = phase.work(phase.units) - phase.work(min(done, phase.units))
+        return left * self.unit_seconds(phase.name)
 
 
 def scaled(
@@ -261,7 +278,9 @@ class Budget:
     def progress(self, units: int) -> None:
         """The current phase has run ``units`` of its units; those since it started measure its cost."""
         self.done[self.current] = units
-        self.costs.record(self.current, units - self._units_at_start, time.perf_counter() - self._phase_started)
+        phase, start = self.phases[self.current], self._units_at_start
+        work = phase.work(units) - phase.work(start)
+        self.costs.record(self.current, units - start, time.perf_counter() - self._phase_started, work)
 
     def steps(self, units_done: int) -> int:
         """The current stage's planned steps, re-sized to the time left after ``units_done`` steps."""
