@@ -255,3 +255,13 @@ def test_a_layer_that_keeps_paying_trains_all_its_steps():
     checked, record, _ = _validate(errors, 100.0, 100)
     assert checked == [0, 20, 40, 60, 80, 100] and record["kept"] and record["best_step"] == 100
     assert "stopped" not in record
+
+
+def test_the_detail_stage_stops_when_a_check_buys_less_than_its_least_gain():
+    """Falling by 0.5 % from step 20 to 40 (under MIN_GAIN's 1 %): stop there and keep step 40's layer,
+    whatever the steps after would have bought."""
+    from pghm.train.detail import MIN_GAIN
+
+    checked, record, _ = _validate([120.0, 95.0, 95.0 * (1 - MIN_GAIN / 2), 80.0], 100.0, 100)
+    assert checked == [0, 20, 40] and record["kept"] and record["best_step"] == 40
+    assert "less than 1%" in record["stopped"]

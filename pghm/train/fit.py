@@ -123,9 +123,25 @@ FIT_SILHOUETTE_WEIGHT = 4.0
 (docs/lab/defaults.md, "Fit: the silhouette weight")."""
 
 
-def _fit_stage(steps: int) -> LoopConfig:
+STAGE1_COARSE = 1.0
+"""Share of stage 1's steps at half the image resolution (:mod:`pghm.train.coarse`): all of them.
+Stage 1 adapts the latent alone, the person's broad colours and shape, which half the pixels
+show as well (docs/training.md, "Coarse to fine")."""
+STAGE2_COARSE = 0.8
+"""Share of stage 2's first steps at half the image resolution: what the avatar learns there at a
+quarter of the pixels' cost, the last fifth of full-resolution steps sharpens (docs/training.md,
+"Coarse to fine")."""
+STAGE2_DECAY = 0.2
+"""Share of stage 2's last steps over which its learning rates fall to zero
+(:func:`pghm.train.loop.decay_factor`): the full-resolution steps, annealed, settle the network
+and the latent where the constant rate left them jittering."""
+
+
+def _fit_stage(steps: int, coarse: float = 0.0, decay: float = 0.0) -> LoopConfig:
     return LoopConfig(
         steps=steps,
+        coarse=coarse,
+        decay=decay,
         images_per_shard=2,
         loss=LossWeights(pose_prior=FIT_POSE_PRIOR, silhouette=FIT_SILHOUETTE_WEIGHT),
         background=TRAINING_BACKGROUND,
@@ -142,8 +158,8 @@ class FitConfig:
     "Fit: steps and backgrounds").
     """
 
-    stage1: LoopConfig = field(default_factory=lambda: _fit_stage(50))
-    stage2: LoopConfig = field(default_factory=lambda: _fit_stage(450))
+    stage1: LoopConfig = field(default_factory=lambda: _fit_stage(50, coarse=STAGE1_COARSE))
+    stage2: LoopConfig = field(default_factory=lambda: _fit_stage(450, coarse=STAGE2_COARSE, decay=STAGE2_DECAY))
     latent_lr: float = 1e-2
     """Adam learning rate of the personal latent (both stages)."""
     network_lr: float = 2e-4
