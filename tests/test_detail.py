@@ -264,4 +264,4 @@ def test_the_detail_stage_stops_when_a_check_buys_less_than_its_least_gain():
 
     checked, record, _ = _validate([120.0, 95.0, 95.0 * (1 - MIN_GAIN / 2), 80.0], 100.0, 100)
     assert checked == [0, 20, 40] and record["kept"] and record["best_step"] == 40
-    assert "less than 1%" in record["stopped"]
+    assert "stopped falling by 1% a check" in record["stopped"]

@@ -1,5 +1,7 @@
 """LazyAdam against torch.optim.Adam: dense groups equal it, lazy rows equal it run per row; pose corrections."""
 
+import math
+
 import pytest
 import torch
 
@@ -145,3 +147,26 @@ def test_decay_is_one_then_a_half_cosine_to_zero():
     assert 0.0 < factors[-1] < 1e-3  # the last step still moves, by (1 - cos(pi / 50)) / 2 of the rate
     whole = [decay_factor(step, steps, 1.0) for step in range(steps)]
     assert whole[0] == 1.0 and sum(whole) == pytest.approx(steps / 2, abs=1)  # the mean of a half cosine
+
+
+def test_the_fused_finiteness_flag_is_every_value_checked_one_by_one():
+    """finite_flag against the brute force over lists mixing dtypes, empty tensors, values next to
+    overflow (finite: a maximum cannot overflow) and one NaN, inf or -inf placed anywhere."""
+    from pghm.train.loop import finite_flag
+
+    generator = torch.Generator().manual_seed(3)
+    base = [
+        torch.randn(5, 3, generator=generator),
+        torch.full((4,), 3e38),
+        torch.randn(7, generator=generator, dtype=torch.float64) * 1e300,
+        torch.zeros(0),
+        torch.randn(2, 2, 2, generator=generator),
+    ]
+    assert bool(finite_flag(base)) and bool(finite_flag([])) and bool(finite_flag([torch.zeros(0)]))
+    for bad in (math.nan, math.inf, -math.inf):
+        for which in (0, 1, 2, 4):
+            tensors = [t.clone() for t in base]
+            flat = tensors[which].view(-1)
+            flat[int(torch.randint(flat.numel(), (1,), generator=generator))] = bad
+            truth = all(bool(torch.isfinite(t).all()) for t in tensors)
+            assert bool(finite_flag(tensors)) == truth is False, (bad, which)

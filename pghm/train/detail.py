@@ -156,7 +156,7 @@ class DetailValidation:
             return False
         (before_step, before), left = self.errors[-2], steps - state.step
         if error >= before * (1.0 - MIN_GAIN):
-            self.why = f"the held frames' error fell by less than {MIN_GAIN:.0%} by step {state.step}"
+            self.why = f"the held frames' error stopped falling by {MIN_GAIN:.0%} a check at step {state.step}"
             return True
         rate = (before - error) / max(state.step - before_step, 1)
         if error > self.without and error - rate * left > self.without:

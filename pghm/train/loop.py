@@ -112,8 +112,9 @@ def decay_factor(step: int, steps: int, share: float) -> float:
         f = (1 + cos(pi t)) / 2,  t = (step - s0) / (steps - s0)   after,
 
     so f falls from 1 to just above 0 at the last step. Adam's constant rate leaves the parameters
-    jittering by about that rate around their optimum; annealing it lets them settle there, which is
-    what makes a short stage as good as a longer constant one (docs/training.md, "Steps and rates").
+    jittering by about that rate around their optimum; annealing it lets them settle there. It does
+    not make fewer steps do: 300 annealed steps of stage 2 score 0.4-0.9 dB below 450 constant ones
+    (docs/training.md, "Coarse to fine").
     """
     start = (1.0 - share) * steps
     if share <= 0.0 or step < start:
@@ -450,10 +451,18 @@ def all_finite(tensors) -> bool:
 
 
 def finite_flag(tensors) -> Tensor:
-    """A 0-dim bool tensor: every value of every tensor in ``tensors`` is finite. Fused, so the host
-    reads one value however many tensors there are (a read per tensor would wait for the device
-    once per parameter)."""
-    flags = [torch.isfinite(t).all() for t in tensors]
+    """A 0-dim bool tensor: every value of every (floating-point) tensor in ``tensors`` is finite.
+
+    Each tensor's largest magnitude, max |t|, is NaN when it holds a NaN and inf when it holds an
+    inf, and finite otherwise (a maximum cannot overflow), so one fused norm per dtype checks them
+    all; the host reads one value however many tensors there are (a read per tensor would wait for
+    the device once per parameter), and the CPU runs one kernel where a check per tensor ran three.
+    """
+    groups: dict[torch.dtype, list[Tensor]] = {}
+    for t in tensors:
+        if t.numel():  # the inf-norm of nothing is undefined; nothing is finite
+            groups.setdefault(t.dtype, []).append(t)
+    flags = [torch.isfinite(torch.stack(torch._foreach_norm(ts, math.inf))).all() for ts in groups.values()]
     return torch.stack(flags).all() if flags else torch.tensor(True)
 
 
@@ -540,7 +549,7 @@ def run_stage(
                 for key, value in terms.items():
                     terms_sum[key] = terms_sum[key] + value if key in terms_sum else value
             with profile.part(profile.GUARD):
-                backup = [p.detach().clone() for p in trainable]
+                backup = torch._foreach_mul([p.detach() for p in trainable], 1.0)  # copies, in one call
                 # One read of the device decides the step: the loss and every gradient finite.
                 losses = [terms_sum["loss"]] if groups else []
                 finite = all_finite([*losses, *(p.grad for p in trainable if p.grad is not None)])

@@ -65,7 +65,7 @@ MIN_STAGE_SCALE = 0.1
 2-minute budget leaves the stages on a machine 3 times slower than the reference."""
 MAX_STAGE_SCALE = 40.0
 """Most stage steps a budget plans, as a multiple of the config's."""
-COARSE_STEP_COST = 0.55
+COARSE_STEP_COST = 0.7
 """A coarse stage step's seconds (:mod:`pghm.train.coarse`: a quarter of the pixels, the same
 network) over a full-resolution one's, until the stage's own steps say otherwise: the splatting and
 the losses are about two fifths of a stage-2 step on a capture (docs/training.md, "Speed")."""
