@@ -335,6 +335,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
             (args.stage2_steps, args.stage2_images, args.stage2_decay, args.stage2_coarse),
         )
     ]
+    detail = FitConfig().detail  # its schedule; the options above set the rest as stage 2's
     config = FitConfig(
         stage1=stages[0],
         stage2=stages[1],
@@ -344,7 +345,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         early_track_steps=args.early_track_steps,
         held_out_steps=args.held_out_steps,
         uv_resolution=args.uv_resolution,
-        detail=replace(stages[1], steps=args.detail_steps, decay=FitConfig().detail.decay, coarse=0.0),
+        detail=replace(stages[1], steps=args.detail_steps, decay=detail.decay, coarse=detail.coarse),
         detail_validation=args.detail_validation,
         lpips=not args.no_lpips,
         body_model_path=args.body_model_path,

@@ -1,14 +1,16 @@
 """Images at a lower resolution for the coarse steps of a stage or a settling pass.
 
 A coarse step renders and scores a sample at 1 / :data:`COARSE_FACTOR` of its resolution: a
-quarter of the pixels, so a quarter of the splatting and of the losses, while the network (which
-works on UV maps, not pixels) costs what it costs at full resolution. What a pose's error or an
+quarter of the pixels, so a quarter of the losses and less of the splatting (which walks each
+Gaussian's footprint in blocks of 8 pixels), while the network (which works on UV maps, not pixels)
+costs what it costs at full resolution: a coarse stage step is about 0.75 of a full one. What a pose's error or an
 avatar's broad colours need, an outline displaced by pixels and regions many pixels wide, half
 the resolution still shows; the fine steps that follow add what it does not.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import torch.nn.functional as F
@@ -47,7 +49,16 @@ def coarse_sample(sample: Sample, factor: int = COARSE_FACTOR) -> Sample:
     return replace(sample, image=pooled(sample.image), mask=pooled(sample.mask), camera=coarse, crop=crop)
 
 
-def halves(samples: list[Sample]) -> bool:
-    """Whether the coarse steps of these (one or more) images render at a lower resolution (:data:`COARSE_MIN_SIDE`)."""
+def coarse_samples(samples: list[Sample]) -> list[Sample]:
+    """The samples (of one size) of a coarse step: each :func:`coarse_sample`, or all as they are when
+    halving them would leave a side under :data:`COARSE_MIN_SIDE`."""
     camera = samples[0].camera
-    return min(camera.width, camera.height) // COARSE_FACTOR >= COARSE_MIN_SIDE
+    if min(camera.width, camera.height) // COARSE_FACTOR < COARSE_MIN_SIDE:
+        return samples
+    return [coarse_sample(sample) for sample in samples]
+
+
+def coarse_steps(share: float, steps: int) -> int:
+    """How many of a stage's ``steps`` are coarse when its first ``share`` are: ceil(share * steps),
+    the step numbers below share * steps (the loop and the plan's cost model count the same ones)."""
+    return math.ceil(share * steps)

@@ -39,7 +39,7 @@ from pghm.model.pghm import PGHM, AvatarOutput
 from pghm.splat import Camera, render
 from pghm.train import distributed, profile
 from pghm.train.background import BACKGROUND_KINDS, BLACK, WHITE, composite_render, composite_target, draw_backgrounds
-from pghm.train.coarse import coarse_sample, halves
+from pghm.train.coarse import coarse_samples, coarse_steps
 from pghm.train.data import PoseCorrections, Sample, TrainingData
 from pghm.train.losses import LossWeights, objective, psnr, silhouette
 from pghm.train.plan import Budget
@@ -529,8 +529,8 @@ def run_stage(
                     samples = data.load_group(identity, images)
                     if not samples:
                         continue
-                    if state.step < config.coarse * steps and halves(samples):
-                        samples = [coarse_sample(sample) for sample in samples]
+                    if state.step < coarse_steps(config.coarse, steps):
+                        samples = coarse_samples(samples)
                     # Drawn from the group's place in the global plan, whichever process computes it.
                     backgrounds = draw_backgrounds(
                         config.background,

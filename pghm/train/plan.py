@@ -30,6 +30,8 @@ import math
 import time
 from dataclasses import dataclass, replace
 
+from pghm.train.coarse import coarse_steps
+
 log = logging.getLogger(__name__)
 
 STAGE1, EARLY_SETTLING, STAGE2, POSE_SETTLING, HELD_OUT, DETAIL = (
@@ -67,8 +69,8 @@ MAX_STAGE_SCALE = 40.0
 """Most stage steps a budget plans, as a multiple of the config's."""
 COARSE_STEP_COST = 0.7
 """A coarse stage step's seconds (:mod:`pghm.train.coarse`: a quarter of the pixels, the same
-network) over a full-resolution one's, until the stage's own steps say otherwise: the splatting and
-the losses are about two fifths of a stage-2 step on a capture (docs/training.md, "Speed")."""
+network) over a full-resolution one's, until the stage's own steps say otherwise: 0.73-0.78
+measured on the real video and the turn (docs/lab/fit-speed.md)."""
 MIN_DETAIL_SHARE = 0.4
 """Least share of the detail stage's steps a budget plans rather than none: at the default 100,
 40 steps, two of its validations (every 20); on the synthetic turn its best layer came at step 40
@@ -93,7 +95,7 @@ class Phase:
     def work(self, units: int) -> float:
         """The first ``units`` units in full steps' worth: the coarse ones (the step numbers below
         ``coarse * steps``, as the loop counts them) at :data:`COARSE_STEP_COST` each."""
-        coarse = min(units, math.ceil(self.coarse * self.steps))
+        coarse = min(units, coarse_steps(self.coarse, self.steps))
         return COARSE_STEP_COST * coarse + (units - coarse)
 
 
@@ -104,7 +106,6 @@ class CostModel:
         self.reference_step = reference_step
         self.seconds: dict[str, float] = {}
         self.units: dict[str, int] = {}
-
         self.work: dict[str, float] = {}
 
     def record(self, name: str, units: int, seconds: float, work: float | None = None) -> None:

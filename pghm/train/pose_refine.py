@@ -20,7 +20,7 @@ of images is in memory. Appearance is untouched: the latent and every network we
 fitted.
 
 Coarse to fine (``coarse_steps``, the fit's settling): a frame's first steps render at half the
-image's resolution (:func:`coarse_sample`; a small image keeps its own) with the network's maps
+image's resolution (:func:`pghm.train.coarse.coarse_samples`; a small image keeps its own) with the network's maps
 held at the batch's starting poses (:class:`HeldAppearance`), which costs the skinning, the
 splatter and the loss and no U-Net; its last steps run the network at full resolution, so the
 poses end aligned as a fully live pass aligns them (docs/training.md, "Speed").
@@ -44,7 +44,7 @@ from pghm.model.geometry import SubjectGeometry
 from pghm.model.pghm import AvatarOutput, IdentityFeatures, PoseBranch
 from pghm.train import profile
 from pghm.train.background import TRAINING_BACKGROUND, draw_backgrounds
-from pghm.train.coarse import coarse_sample, halves
+from pghm.train.coarse import coarse_samples
 from pghm.train.data import PoseCorrections, Sample, TrainingData
 from pghm.train.loop import AvatarObjective, all_finite
 from pghm.train.losses import LossWeights
@@ -57,6 +57,7 @@ IMAGES_PER_BATCH = 2
 """Images rendered together in one forward pass (the fit's batch): memory, not the result."""
 REFINE_SEED_SALT = 0x7E57
 """Keeps the refinement's background draws apart from the fit's (same seed, same step)."""
+
 
 class HeldAppearance(AvatarObjective):
     """The objective with the network's maps held at a batch's starting poses.
@@ -224,7 +225,7 @@ class _Settling:
             self.bar.update(steps)
             return
         with profile.part(profile.DATA):
-            coarse = [coarse_sample(sample) for sample in samples] if coarse_steps and halves(samples) else samples
+            coarse = coarse_samples(samples) if coarse_steps else samples
         if self.held:
             objective.release()
         parameters = list(objective.corrections.parameters())
