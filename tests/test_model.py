@@ -288,3 +288,26 @@ def test_a_model_at_another_resolution_keeps_its_networks_and_resamples_its_bank
     assert fine_map.shape[-1] == 2 * coarse_map.shape[-1]
     middle, fine_middle = coarse_map.shape[-1] // 2, fine_map.shape[-1] // 2
     torch.testing.assert_close(fine_map[..., fine_middle, fine_middle], coarse_map[..., middle, middle])
+
+
+@pytest.mark.parametrize("batches", [(2, 1, 2), (1, 3, 1), (1, 1, 1), (2, 2, 2)])
+def test_concat_conv_equals_the_convolution_of_the_broadcast_concatenation(batches):
+    """The decoders' first convolutions split by input part (shared parts convolved once) against
+    the plain convolution of the parts broadcast to the batch and concatenated: the same in float64."""
+    from pghm.model.networks import concat_conv, conv3x3
+
+    torch.manual_seed(0)
+    widths = (5, 3, 4)
+    conv = conv3x3(sum(widths), 6).double()
+    torch.nn.init.normal_(conv.bias)
+    parts = [torch.randn(b, w, 8, 8, dtype=torch.float64, requires_grad=True) for b, w in zip(batches, widths)]
+    batch = max(batches)
+    plain = conv(torch.cat([p.expand(batch, -1, -1, -1) for p in parts], 1))
+    split = concat_conv(conv, parts)
+    assert split.shape == plain.shape
+    torch.testing.assert_close(split, plain, rtol=1e-12, atol=1e-12)
+    weights = torch.randn_like(plain)
+    grads_plain = torch.autograd.grad((plain * weights).sum(), [*parts, conv.weight, conv.bias])
+    grads_split = torch.autograd.grad((split * weights).sum(), [*parts, conv.weight, conv.bias])
+    for a, b in zip(grads_split, grads_plain):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)

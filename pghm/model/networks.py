@@ -47,6 +47,12 @@ class ConvBlock(nn.Sequential):
             nn.SiLU(),
         )
 
+    def rest(self, x: Tensor) -> Tensor:
+        """The block after its first convolution, on that convolution's output ``x``."""
+        for layer in list(self)[1:]:
+            x = layer(x)
+        return x
+
 
 class FeatureDecoder(nn.Module):
     """Expands a compact latent (B, C, L', L') to the identity map F (B, C, L, L), L = 2 L'."""
@@ -121,14 +127,38 @@ class PyramidDecoder(nn.Module):
 
     def forward(self, skips: Pyramid, condition: Pyramid | None = None) -> Tensor:
         """(B, out_channels, L, L) from the E_u pyramid (batch 1 or B) and a condition pyramid."""
-        batch = max(skips[0].shape[0], condition[0].shape[0] if condition else 1)
 
         def level(k: int) -> list[Tensor]:
-            parts = [skips[k]] if condition is None else [skips[k], condition[k]]
-            return [part.expand(batch, -1, -1, -1) for part in parts]
+            return [skips[k]] if condition is None else [skips[k], condition[k]]
 
-        x = self.bottom(torch.cat(level(len(skips) - 1), 1))
+        x = F.silu(concat_conv(self.bottom[0], level(len(skips) - 1)))
         for up, k in zip(self.ups, range(len(skips) - 2, -1, -1)):
             x = F.interpolate(x, scale_factor=2.0, mode="nearest")
-            x = up(torch.cat([x, *level(k)], 1))
+            x = up.rest(concat_conv(up[0], [x, *level(k)]))
         return self.head(x)
+
+
+def concat_conv(conv: nn.Conv2d, parts: list[Tensor]) -> Tensor:
+    """``conv`` of the channel concatenation of ``parts`` (each (1 or B, C_i, H, W)), broadcast to B.
+
+    A convolution is linear in its input channels, so with W = [W_1 | ... | W_n] split as the parts'
+    channels,
+
+        conv([p_1, ..., p_n], W) = b + sum_i conv(p_i, W_i),
+
+    and a part shared by the batch (the E_u skips, batch 1, beside a condition of batch B) is
+    convolved once instead of B times: in a decoder at two images a step, 28 % of its FLOPs are the
+    skips'. The parts of batch B are convolved together, those shared together.
+    """
+    batch = max(part.shape[0] for part in parts)
+    shared = [part.shape[0] != batch for part in parts]
+    if not any(shared):
+        return conv(torch.cat(parts, 1))
+    weights = conv.weight.split([part.shape[1] for part in parts], 1)
+
+    def grouped(which: bool) -> Tensor:
+        inputs = [part for part, s in zip(parts, shared) if s == which]
+        weight = torch.cat([w for w, s in zip(weights, shared) if s == which], 1)
+        return F.conv2d(torch.cat(inputs, 1), weight, None, conv.stride, conv.padding)
+
+    return grouped(False) + grouped(True) + conv.bias[:, None, None]
