@@ -142,9 +142,14 @@ def skin_directions(directions: Tensor, weights: Tensor, transforms: Tensor) -> 
         directions: (B, N, 3) unit vectors; a direction blended to zero length stays zero
         instead of becoming NaN.
     """
-    deltas = blend_transform_deltas(weights, transforms)
-    vectors = directions.to(deltas.dtype)
-    return safe_normalize(vectors + (deltas[..., :3] @ vectors[..., None])[..., 0])
+    return rotate_directions(directions, blend_transform_deltas(weights, transforms)[..., :3])
+
+
+def rotate_directions(directions: Tensor, rotation_delta: Tensor) -> Tensor:
+    """Directions (N, 3) or (B, N, 3) rotated by the blended linear parts I + D, ``rotation_delta``
+    D (B, N, 3, 3) (:func:`blend_transform_deltas`), then normalised as :func:`skin_directions`."""
+    vectors = directions.to(rotation_delta.dtype)
+    return safe_normalize(vectors + (rotation_delta @ vectors[..., None])[..., 0])
 
 
 NORMALIZE_EPS = 1e-12

@@ -42,7 +42,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from pghm.body.pose import BodyPose
-from pghm.body.skinning import blend_transform_deltas, skin_directions
+from pghm.body.skinning import blend_transform_deltas, rotate_directions
 from pghm.errors import PghmError
 from pghm.model.config import ModelConfig
 from pghm.model.detail import LIFT_CHANNEL, DetailLayer, DetailSkinned, pose_detail, upsample
@@ -283,7 +283,7 @@ class PGHM(nn.Module):
         transforms = geometry.transforms(pose)
         points = posed_points(surface, transforms)
         rotation_delta = blend_transform_deltas(surface.weights, transforms)[..., :3]
-        normals = skin_directions(surface.normals, surface.weights, transforms)
+        normals = rotate_directions(surface.normals, rotation_delta)  # one blend of the weights for both
         root_rotation, root_translation = transforms[:, 0, :3, :3], transforms[:, 0, :3, 3]
         root = root_rotation @ geometry.joints[0].to(points.dtype) + root_translation
         # U_theta in the root frame: A_root^-1 x = R^T (x - t), minus V_bar (zero at rest).
