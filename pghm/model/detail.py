@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from pghm.body.skinning import blend_transform_deltas, safe_normalize
+from pghm.body.skinning import blend_transform_deltas, rotate_directions
 from pghm.uv.atlas import UVAtlas
 from pghm.uv.maps import TexelSurface, barycentric_blend, posed_points
 
@@ -98,11 +98,10 @@ def pose_detail(surface: TexelSurface, transforms: Tensor) -> DetailSkinned:
     """
     vertex_deltas = blend_transform_deltas(surface.vertex_weights, transforms)[..., :3]  # (B, V, 3, 3)
     deltas = barycentric_blend(vertex_deltas.flatten(-2), surface.corners, surface.barycentric).unflatten(-1, (3, 3))
-    normals = surface.normals.to(deltas.dtype)
     return DetailSkinned(
         surface_points=posed_points(surface, transforms),
         rotation_delta=deltas,
-        normals=safe_normalize(normals + (deltas @ normals[..., None])[..., 0]),
+        normals=rotate_directions(surface.normals, deltas),
     )
 
 

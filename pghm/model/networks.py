@@ -131,7 +131,7 @@ class PyramidDecoder(nn.Module):
         def level(k: int) -> list[Tensor]:
             return [skips[k]] if condition is None else [skips[k], condition[k]]
 
-        x = F.silu(concat_conv(self.bottom[0], level(len(skips) - 1)))
+        x = self.bottom[1](concat_conv(self.bottom[0], level(len(skips) - 1)))
         for up, k in zip(self.ups, range(len(skips) - 2, -1, -1)):
             x = F.interpolate(x, scale_factor=2.0, mode="nearest")
             x = up.rest(concat_conv(up[0], [x, *level(k)]))
