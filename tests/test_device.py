@@ -10,7 +10,7 @@ from conftest import TINY_MODEL
 
 from pghm.body.pose import BodyPose
 from pghm.cli.main import main
-from pghm.device import move, resolve_device
+from pghm.device import move, resolve_device, resolve_precision
 from pghm.errors import PghmError
 from pghm.model import PGHM, ModelConfig, subject_geometry
 from pghm.model.geometry import SubjectGeometry
@@ -191,3 +191,14 @@ def test_train_prior_with_the_cpu_given(tiny_dataset, tmp_path):
     default = train_prior(tiny_dataset, tmp_path / "default.pt", config).model.state_dict()
     given = train_prior(tiny_dataset, tmp_path / "cpu.pt", config, device=CPU).model.state_dict()
     assert all(torch.equal(default[name], given[name]) for name in default)
+
+
+@pytest.mark.parametrize("amx", [True, False])
+def test_auto_precision_is_bfloat16_only_on_a_cpu_with_matrix_units(monkeypatch, amx):
+    monkeypatch.setattr(torch.cpu, "_is_amx_tile_supported", lambda: amx, raising=False)
+    assert resolve_precision("auto", CPU) == (torch.bfloat16 if amx else torch.float32)
+    assert resolve_precision("auto", torch.device("cuda")) == torch.float32  # not measured there
+    assert resolve_precision("float32", CPU) == torch.float32
+    assert resolve_precision("bfloat16", CPU) == torch.bfloat16
+    with pytest.raises(PghmError, match="--precision must be one of auto, float32, bfloat16"):
+        resolve_precision("half", CPU)

@@ -100,7 +100,8 @@ def avatar_files(tiny_dataset, prior_files, tmp_path_factory, patches) -> dict[s
     folder = tmp_path_factory.mktemp("avatars")
     stages = ["--stage1-steps", "1", "--stage2-steps", "1", "--track-steps", "1", "--detail-steps", "1"]
     stages += ["--detail-validation", "0", "--early-track-steps", "1", "--held-out-steps", "1"]
-    options = [*stages, "--checkpoint-every", "1"]
+    # One precision for both: "auto" is bfloat16 on a CPU with matrix units, float32 on CUDA.
+    options = [*stages, "--checkpoint-every", "1", "--precision", "float32"]
     for device in ("cpu", "cuda"):
         out = folder / f"{device}.pt"
         args = ["fit", str(tiny_dataset / SUBJECT), "--prior", str(prior_files[device]), "--out", str(out)]
@@ -230,6 +231,7 @@ def test_fit_resumed_on_the_device_is_the_cpus_uninterrupted(tiny_dataset, prior
         hold_appearance=True,
         uv_resolution=2 * TINY_MODEL["uv_resolution"],
         lpips=False,
+        precision="float32",  # as the device's "auto"
     )
     fit(tiny_dataset / SUBJECT, prior_files["cpu"], tmp_path / "cpu.pt", config)
     calls = []

@@ -9,6 +9,7 @@ import torch
 from conftest import SMALL_MODEL as SMALL
 
 from pghm.body import BodyPose
+from pghm.errors import PghmError
 from pghm.model import PGHM, ModelConfig, subject_geometry
 from pghm.model.evaluator import CachedEvaluator
 from pghm.model.pghm import REG_POSITION_UNIT
@@ -311,3 +312,60 @@ def test_concat_conv_equals_the_convolution_of_the_broadcast_concatenation(batch
     grads_split = torch.autograd.grad((split * weights).sum(), [*parts, conv.weight, conv.bias])
     for a, b in zip(grads_split, grads_plain):
         torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
+
+
+BFLOAT16_UNIT = 2.0**-8
+"""bfloat16's spacing relative to a value (8 bits of mantissa): twice its rounding error."""
+
+
+def head_outputs(model: PGHM, body, geometry) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+    """Every decoder head's output (float32 maps) and the gradients of a loss over the Gaussians
+    with respect to every weight, of one forward and backward pass at two views."""
+    outputs = []
+    heads = [m for m in model.modules() if isinstance(m, torch.nn.Conv2d) and m.kernel_size == (1, 1)]
+    hooks = [head.register_forward_hook(lambda module, inputs, output: outputs.append(output)) for head in heads]
+    model.zero_grad(set_to_none=True)
+    centres = torch.tensor([[0.3, 0.1, 2.8], [2.0, 0.4, 1.5]])
+    out = model(model.decode_identity(0), geometry, random_pose(body, 2, seed=3), centres)
+    (out.dynamic.colors.square().mean() + out.dynamic.means.square().mean() + out.regularizer).backward()
+    for hook in hooks:
+        hook.remove()
+    return [o.detach() for o in outputs], [p.grad for p in model.parameters()]
+
+
+@pytest.mark.parametrize("training", [True, False])
+def test_bfloat16_networks_stay_within_their_rounding_of_float32(body, geometry, training):
+    """bfloat16 autocast rounds each convolution's inputs and weights to 8 bits of mantissa and sums
+    in float32: a layer's output moves by at most about one bfloat16 unit relative to its size, in
+    no preferred direction, so D layers in a row by about sqrt(D) units (independent roundings add
+    in quadrature), D at most the model's convolution count; a gradient passes the layers twice. The
+    heads run in float32, the weights and their gradients stay float32, and float32 afterwards gives
+    float32's values again."""
+    model = PGHM(SMALL, num_identities=1)
+    randomize_heads(model, scale=0.5)
+    model.train(training)
+    reference, reference_grads = head_outputs(model, body, geometry)
+    bound = math.sqrt(sum(isinstance(m, torch.nn.Conv2d) for m in model.modules())) * BFLOAT16_UNIT
+    model.set_precision(torch.bfloat16).train(training)
+    rounded, rounded_grads = head_outputs(model, body, geometry)
+    for a, b in zip(reference, rounded):
+        assert b.dtype == torch.float32
+        error = float((a - b).norm() / a.norm())
+        assert 0 < error <= bound  # rounded (bfloat16 ran), but within its bound
+    for a, b in zip(reference_grads, rounded_grads):
+        assert b.dtype == torch.float32
+        assert float((a - b).norm()) <= 2 * bound * float(a.norm())
+    assert all(p.dtype == torch.float32 for p in model.parameters())
+    again, _ = head_outputs(model.set_precision(torch.float32).train(training), body, geometry)
+    for a, b in zip(reference, again):
+        torch.testing.assert_close(a, b, atol=1e-6, rtol=0)  # the layouts sum in other orders
+
+
+def test_precision_carries_to_derived_models_and_refuses_other_dtypes():
+    model = PGHM(SMALL, num_identities=1).set_precision(torch.bfloat16)
+    assert model.at_resolution(2 * SMALL.uv_resolution).compute_dtype == torch.bfloat16
+    assert model.with_detail().compute_dtype == torch.bfloat16
+    spatial = [m for m in model.train().modules() if isinstance(m, torch.nn.Conv2d) and m.kernel_size != (1, 1)]
+    assert all(c.weight.is_contiguous(memory_format=torch.channels_last) for c in spatial)  # bfloat16 trains NHWC
+    with pytest.raises(PghmError, match="float32 or bfloat16"):
+        model.set_precision(torch.float16)

@@ -20,6 +20,7 @@ from pghm.cli.options import (
     rendering_device,
 )
 from pghm.cli.render import parse_colour
+from pghm.device import PRECISION_CHOICES
 from pghm.errors import PghmError
 from pghm.io.atomic import all_or_none
 from pghm.io.outputs import PNG_SUFFIXES, check_output
@@ -221,6 +222,13 @@ def register(subparsers) -> None:
         "steps scale from the ones given; the avatar then depends on the machine's speed); default: the fixed steps",
     )
     fit.add_argument(
+        "--precision",
+        choices=PRECISION_CHOICES,
+        default=fit_defaults.precision,
+        help="what the networks compute in: float32, bfloat16, or auto (default: bfloat16 on a CPU with matrix "
+        "units (AMX), where it is faster; else float32)",
+    )
+    fit.add_argument(
         "--profile",
         default=None,
         metavar="JSON",
@@ -350,6 +358,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         lpips=not args.no_lpips,
         body_model_path=args.body_model_path,
         minutes=args.minutes,
+        precision=args.precision,
     )
     prior = ModelConfig() if args.prior == "scratch" else args.prior
     with all_or_none() as outputs:  # the avatar and its profile, both or neither

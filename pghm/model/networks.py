@@ -135,7 +135,10 @@ class PyramidDecoder(nn.Module):
         for up, k in zip(self.ups, range(len(skips) - 2, -1, -1)):
             x = F.interpolate(x, scale_factor=2.0, mode="nearest")
             x = up.rest(concat_conv(up[0], [x, *level(k)]))
-        return self.head(x)
+        if x.dtype != torch.bfloat16:
+            return self.head(x)
+        with torch.autocast(x.device.type, enabled=False):  # the head's outputs in full precision
+            return self.head(x.float())
 
 
 def concat_conv(conv: nn.Conv2d, parts: list[Tensor]) -> Tensor:

@@ -33,6 +33,7 @@ values) is, with u = ``REG_POSITION_UNIT``:
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections import Counter
 from dataclasses import dataclass, replace
@@ -202,6 +203,7 @@ class PGHM(nn.Module):
             both = tuple(2 * c for c in cond)
             self.single_decoder = PyramidDecoder(skip, both, up, STATIC_CHANNELS + POSE_CHANNELS + VIEW_CHANNELS)
         self.detail = DetailLayer(config.uv_resolution) if config.detail else None
+        self.compute_dtype = torch.float32
         self.run_counts: Counter[str] = Counter()
         for name in COMPONENTS:
             if hasattr(self, name):
@@ -218,12 +220,30 @@ class PGHM(nn.Module):
 
         Inference runs every convolution channels-last (NHWC), which oneDNN executes about
         20 % faster on this CPU (benchmarks/bench_model.py, its "inference_layout" rows); the activations
-        follow the weights' layout. Training keeps the default NCHW, whose backward pass is
-        faster. The values are the same either way; only the strides differ.
+        follow the weights' layout. Training in float32 keeps the default NCHW, whose backward pass is
+        faster; in bfloat16 channels-last is faster both ways. The values are the same either way;
+        only the strides differ.
         """
         super().train(mode)
-        set_conv_layout(self, torch.contiguous_format if mode else torch.channels_last)
+        nchw = mode and self.compute_dtype == torch.float32
+        set_conv_layout(self, torch.contiguous_format if nchw else torch.channels_last)
         return self
+
+    def set_precision(self, dtype: torch.dtype) -> PGHM:
+        """Run the convolutions in ``dtype``: float32, or bfloat16 under autocast (the weights, the
+        heads and everything after them stay float32). On a CPU with matrix units (AMX) oneDNN runs
+        bfloat16 convolutions about twice as fast (docs/training.md, "Speed"); the values differ
+        by bfloat16's rounding (8 bits of mantissa) in the features, not in the stored weights."""
+        if dtype not in (torch.float32, torch.bfloat16):
+            raise PghmError(f"the model computes in float32 or bfloat16, not {dtype}")
+        self.compute_dtype = dtype
+        return self.train(self.training)
+
+    def _networks(self) -> contextlib.AbstractContextManager:
+        """The context the convolutional networks run in: autocast to :attr:`compute_dtype`."""
+        if self.compute_dtype == torch.float32:
+            return contextlib.nullcontext()  # autocast refuses some devices even disabled (meta)
+        return torch.autocast(self.identity_bank.device.type, dtype=self.compute_dtype)
 
     def at_resolution(self, uv_resolution: int) -> PGHM:
         """This model with UV maps of side ``uv_resolution`` (a new model; this one is unchanged).
@@ -243,13 +263,13 @@ class PGHM(nn.Module):
             weights["identity_bank"], size=(size, size), mode="bilinear", align_corners=False
         )
         model.load_state_dict(weights)
-        return model.train(self.training)
+        return model.set_precision(self.compute_dtype).train(self.training)
 
     def with_detail(self) -> PGHM:
         """This model with a zero detail layer (:mod:`pghm.model.detail`; a new model, this one unchanged)."""
         model = PGHM(replace(self.config, detail=True), num_identities=self.num_identities)
         model.load_state_dict({**self.state_dict(), "detail.maps": model.detail.maps.detach()})
-        return model.train(self.training)
+        return model.set_precision(self.compute_dtype).train(self.training)
 
     @property
     def num_identities(self) -> int:
@@ -456,12 +476,14 @@ class PGHM(nn.Module):
                 (multi-view data) then share the skinning and the pose branch, which run
                 once per pose instead of once per view.
         """
-        features = self.identity_features(identity_map)
+        with self._networks():
+            features = self.identity_features(identity_map)
         skinned = self.skin(geometry, pose)
-        pose_branch = self.pose_branch(features, skinned)
-        if pose_index is not None:
-            skinned, pose_branch = skinned.select(pose_index), pose_branch.select(pose_index)
-        view = self.view_branch(features, skinned, pose_branch, geometry, camera_centres)
+        with self._networks():
+            pose_branch = self.pose_branch(features, skinned)
+            if pose_index is not None:
+                skinned, pose_branch = skinned.select(pose_index), pose_branch.select(pose_index)
+            view = self.view_branch(features, skinned, pose_branch, geometry, camera_centres)
         return self.assemble(features, skinned, pose_branch, view, geometry)
 
     def parameter_count(self) -> dict[str, int]:

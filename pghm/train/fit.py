@@ -36,7 +36,7 @@ from torch import nn
 
 from pghm._fault_injection import interrupt_point
 from pghm.body import load_body
-from pghm.device import move
+from pghm.device import move, resolve_precision
 from pghm.errors import PghmError
 from pghm.io.atomic import Outputs
 from pghm.io.avatar import Avatar, PoseTrack, load_avatar, recorded_path, save_avatar
@@ -213,6 +213,10 @@ class FitConfig:
     full frame's (:mod:`pghm.train.person_crop`); None: whole frames."""
     lpips: bool = True
     body_model_path: str | None = None
+    precision: str = "auto"
+    """What the networks compute in (:func:`pghm.device.resolve_precision`): "auto" is bfloat16
+    on a CPU with matrix units, where a step is cheaper at the same held-out figures, else float32
+    (docs/training.md, "Speed"). The avatar's weights are float32 either way."""
     minutes: float | None = None
     """A wall-clock budget for the whole fit: the phases are sized to it on the machine as it runs
     (:mod:`pghm.train.plan`), so the avatar depends on the machine's speed; None: the config's steps."""
@@ -507,7 +511,7 @@ def prepare(
         prior_source = recorded_path(prior) if not isinstance(prior, Avatar) else "(in memory)"
     if config.uv_resolution is None:  # the prior's own L (a given one was checked above)
         _check_detail_resolution(config, data, model.config.uv_resolution)
-    model = model.to(device)
+    model = model.to(device).set_precision(resolve_precision(config.precision, device))
     model.train()
     for p in model.parameters():
         p.requires_grad_(False)
@@ -640,6 +644,7 @@ def finished_avatar(run: FitRun) -> Avatar:
             "steps": {"stage1": state1.step, "stage2": state2.step},
             "seconds": round(state1.seconds + state2.seconds, 1),
             "threads": torch.get_num_threads(),  # the last bits of every float depend on it
+            "precision": str(run.model.compute_dtype).removeprefix("torch."),
             "skipped_steps": state1.skipped_steps + state2.skipped_steps,
             "skipped_images": [list(b) for b in state2.bad_images],
             "lpips": run.lpips_line,
@@ -729,6 +734,7 @@ def fit(
             if name == STAGE1:
                 log.info("fit: stage 1 done; the rest of the plan:\n%s", describe(budget.remaining(), budget.costs))
     record_plan(run.avatar, budget)
+    run.avatar.model.set_precision(torch.float32)  # the avatar as its file holds it
     with profile.phase("save"):
         save_avatar(run.out, run.avatar, outputs)
     # The avatar holds the result; a stale checkpoint would only mislead --resume.
