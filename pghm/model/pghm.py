@@ -231,9 +231,10 @@ class PGHM(nn.Module):
 
     def set_precision(self, dtype: torch.dtype) -> PGHM:
         """Run the convolutions in ``dtype``: float32, or bfloat16 under autocast (the weights, the
-        heads and everything after them stay float32). On a CPU with matrix units (AMX) oneDNN runs
-        bfloat16 convolutions about twice as fast (docs/training.md, "Speed"); the values differ
-        by bfloat16's rounding (8 bits of mantissa) in the features, not in the stored weights."""
+        heads and everything after them stay float32). On a CPU with matrix units (AMX) a forward and
+        backward pass runs 1.7 times as fast (docs/training.md, "bfloat16 where the CPU has matrix
+        units"); the values differ by bfloat16's rounding (8 bits of mantissa) in the features, not
+        in the stored weights."""
         if dtype not in (torch.float32, torch.bfloat16):
             raise PghmError(f"the model computes in float32 or bfloat16, not {dtype}")
         self.compute_dtype = dtype
@@ -263,13 +264,15 @@ class PGHM(nn.Module):
             weights["identity_bank"], size=(size, size), mode="bilinear", align_corners=False
         )
         model.load_state_dict(weights)
-        return model.set_precision(self.compute_dtype).train(self.training)
+        model.compute_dtype = self.compute_dtype  # checked when this model's was set
+        return model.train(self.training)
 
     def with_detail(self) -> PGHM:
         """This model with a zero detail layer (:mod:`pghm.model.detail`; a new model, this one unchanged)."""
         model = PGHM(replace(self.config, detail=True), num_identities=self.num_identities)
         model.load_state_dict({**self.state_dict(), "detail.maps": model.detail.maps.detach()})
-        return model.set_precision(self.compute_dtype).train(self.training)
+        model.compute_dtype = self.compute_dtype  # checked when this model's was set
+        return model.train(self.training)
 
     @property
     def num_identities(self) -> int:
