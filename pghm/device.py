@@ -51,22 +51,27 @@ PRECISION_CHOICES: tuple[str, ...] = ("auto", "float32", "bfloat16")
 """Values of ``--precision``."""
 
 
-def has_matrix_units() -> bool:
-    """Whether this CPU has AMX tiles, where oneDNN runs bfloat16 convolutions in matrix units."""
-    probe = getattr(torch.cpu, "_is_amx_tile_supported", None)
-    return bool(probe is not None and probe())
+BFLOAT16_PROBES: tuple[str, ...] = ("_is_amx_tile_supported", "_is_avx512_bf16_supported")
+"""torch's probes of the CPU features that multiply bfloat16 natively: AMX tiles (Intel Sapphire
+Rapids and later) and AVX512-BF16's dot products (AMD Zen 4 and later, Intel Cooper Lake)."""
+
+
+def has_bfloat16_arithmetic() -> bool:
+    """Whether this CPU multiplies bfloat16 natively, so that oneDNN's bfloat16 convolutions beat its
+    float32 ones; without such units bfloat16 is converted to float32 and back, and is slower."""
+    return any(bool(getattr(torch.cpu, name, lambda: False)()) for name in BFLOAT16_PROBES)
 
 
 def resolve_precision(name: str, device: torch.device) -> torch.dtype:
     """The dtype the networks compute in for ``--precision name`` on ``device``.
 
-    "auto" is bfloat16 on a CPU with matrix units (AMX), where a fit's stage-2 network runs 1.3-1.5
-    times faster at the same held-out figures (docs/training.md, "bfloat16 where the CPU has matrix
-    units"), and float32 elsewhere: without them bfloat16 is emulated and slower, and on CUDA it is
-    not yet measured.
+    "auto" is bfloat16 on a CPU that multiplies it natively (:func:`has_bfloat16_arithmetic`), where
+    a fit's stage-2 network runs 1.3-1.5 times faster at the same held-out figures (docs/training.md,
+    "bfloat16 where the CPU multiplies it natively"), and float32 elsewhere: on other CPUs bfloat16
+    is emulated and slower, and on CUDA it is not yet measured.
     """
     if name == "auto":
-        return torch.bfloat16 if device.type == "cpu" and has_matrix_units() else torch.float32
+        return torch.bfloat16 if device.type == "cpu" and has_bfloat16_arithmetic() else torch.float32
     if name not in PRECISION_CHOICES:
         raise PghmError(f"--precision must be one of {', '.join(PRECISION_CHOICES)}, got {name!r}")
     return getattr(torch, name)

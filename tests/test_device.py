@@ -193,10 +193,11 @@ def test_train_prior_with_the_cpu_given(tiny_dataset, tmp_path):
     assert all(torch.equal(default[name], given[name]) for name in default)
 
 
-@pytest.mark.parametrize("amx", [True, False])
-def test_auto_precision_is_bfloat16_only_on_a_cpu_with_matrix_units(monkeypatch, amx):
+@pytest.mark.parametrize("amx, avx512_bf16", [(True, False), (False, True), (True, True), (False, False)])
+def test_auto_precision_is_bfloat16_only_on_a_cpu_that_multiplies_it(monkeypatch, amx, avx512_bf16):
     monkeypatch.setattr(torch.cpu, "_is_amx_tile_supported", lambda: amx, raising=False)
-    assert resolve_precision("auto", CPU) == (torch.bfloat16 if amx else torch.float32)
+    monkeypatch.setattr(torch.cpu, "_is_avx512_bf16_supported", lambda: avx512_bf16, raising=False)
+    assert resolve_precision("auto", CPU) == (torch.bfloat16 if amx or avx512_bf16 else torch.float32)
     assert resolve_precision("auto", torch.device("cuda")) == torch.float32  # not measured there
     assert resolve_precision("float32", CPU) == torch.float32
     assert resolve_precision("bfloat16", CPU) == torch.bfloat16

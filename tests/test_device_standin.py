@@ -100,7 +100,7 @@ def avatar_files(tiny_dataset, prior_files, tmp_path_factory, patches) -> dict[s
     folder = tmp_path_factory.mktemp("avatars")
     stages = ["--stage1-steps", "1", "--stage2-steps", "1", "--track-steps", "1", "--detail-steps", "1"]
     stages += ["--detail-validation", "0", "--early-track-steps", "1", "--held-out-steps", "1"]
-    # One precision for both: "auto" is bfloat16 on a CPU with matrix units, float32 on CUDA.
+    # One precision for both: "auto" is bfloat16 on a CPU that multiplies it natively, float32 on CUDA.
     options = [*stages, "--checkpoint-every", "1", "--precision", "float32"]
     for device in ("cpu", "cuda"):
         out = folder / f"{device}.pt"

@@ -225,8 +225,8 @@ def register(subparsers) -> None:
         "--precision",
         choices=PRECISION_CHOICES,
         default=fit_defaults.precision,
-        help="what the networks compute in: float32, bfloat16, or auto (default: bfloat16 on a CPU with matrix "
-        "units (AMX), where it is faster; else float32)",
+        help="what the networks compute in: float32, bfloat16, or auto (default: bfloat16 on a CPU that "
+        "multiplies it natively (AMX or AVX512-BF16), where it is faster; else float32)",
     )
     fit.add_argument(
         "--profile",

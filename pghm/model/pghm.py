@@ -231,10 +231,10 @@ class PGHM(nn.Module):
 
     def set_precision(self, dtype: torch.dtype) -> PGHM:
         """Run the convolutions in ``dtype``: float32, or bfloat16 under autocast (the weights, the
-        heads and everything after them stay float32). On a CPU with matrix units (AMX) a forward and
-        backward pass runs 1.7 times as fast (docs/training.md, "bfloat16 where the CPU has matrix
-        units"); the values differ by bfloat16's rounding (8 bits of mantissa) in the features, not
-        in the stored weights."""
+        heads and everything after them stay float32). On a CPU that multiplies bfloat16 natively a
+        forward and backward pass runs 1.5-1.7 times as fast (docs/training.md, "bfloat16 where the CPU
+        multiplies it natively"); the values differ by bfloat16's rounding (8 bits of mantissa) in the
+        features, not in the stored weights."""
         if dtype not in (torch.float32, torch.bfloat16):
             raise PghmError(f"the model computes in float32 or bfloat16, not {dtype}")
         self.compute_dtype = dtype

@@ -214,10 +214,10 @@ class FitConfig:
     lpips: bool = True
     body_model_path: str | None = None
     precision: str = "auto"
-    """What the networks compute in (:func:`pghm.device.resolve_precision`): "auto" is bfloat16
-    on a CPU with matrix units, where a step is cheaper at the same held-out figures, else float32
-    (docs/training.md, "bfloat16 where the CPU has matrix units"). The avatar's weights are
-    float32 either way."""
+    """What the networks compute in (:func:`pghm.device.resolve_precision`): "auto" is bfloat16 on a
+    CPU that multiplies it natively, where a step is cheaper at the same held-out figures, else
+    float32 (docs/training.md, "bfloat16 where the CPU multiplies it natively"). The avatar's
+    weights are float32 either way."""
     minutes: float | None = None
     """A wall-clock budget for the whole fit: the phases are sized to it on the machine as it runs
     (:mod:`pghm.train.plan`), so the avatar depends on the machine's speed; None: the config's steps."""
