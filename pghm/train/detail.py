@@ -21,12 +21,13 @@ avatar's earlier stages and not by the layer, which favours the avatar without i
 kept only when its gain outweighs that.
 
 The layer is validated as it trains, every :data:`CHECK_EVERY` steps (:func:`validated_detail`),
-and the stage stops as soon as the answer is known: when the held frames' error falls by less than
-:data:`MIN_GAIN` over a check (the layer has stopped paying; the best layer so far is kept if it
-beats the avatar without one),
-or when it is still above the avatar's and, falling at its last rate for the steps left, would
-not get below it (the layer cannot pay in time; dropped). A video whose layer loses is then
-decided after a fraction of the stage's steps.
+and the stage stops as soon as the answer is known: once the best layer so far beats the avatar
+without one, when the held frames' error falls by less than :data:`MIN_GAIN` over a check (the
+layer has stopped paying; that best layer is kept); while it does not, when, falling at its last
+rate for the steps left, it would not get below the avatar's (the layer cannot pay in time;
+dropped). A layer still losing is not stopped for a slow check alone: its error may plateau for
+one check and fall again, and stopping there made a keep-or-drop decision on a knife's edge
+(docs/lab/fit-speed.md). A video whose layer loses is decided after a fraction of the stage's steps.
 """
 
 from __future__ import annotations
@@ -60,9 +61,10 @@ CHECK_EVERY = 20
 """Steps of the detail stage between validations of its layer (:func:`validated_detail`): a
 validation renders the held frames once (a few steps' time), five of them in the default 100 steps."""
 MIN_GAIN = 0.01
-"""Least fall of the held frames' error over one check (a share of it) that keeps the stage going:
-below it the layer has stopped paying for its steps (on the synthetic exercise video the error fell
-0.25 % from step 40 to 60, 1.1 % to 80, then rose; docs/lab/fit-speed.md)."""
+"""Least fall of the held frames' error over one check (a share of it) that keeps the stage going
+once its layer beats the avatar without one: below it the layer has stopped paying for its steps (on
+the synthetic exercise video the error fell 0.25 % from step 40 to 60, 1.1 % to 80, then rose;
+docs/lab/fit-speed.md)."""
 
 
 def validation_images(images: Sequence[int], every: int) -> list[int]:
@@ -155,7 +157,8 @@ class DetailValidation:
         if len(self.errors) < 2:
             return False
         (before_step, before), left = self.errors[-2], steps - state.step
-        if error >= before * (1.0 - MIN_GAIN):
+        beats = self.best is not None and self.best[0] < self.without
+        if beats and error >= before * (1.0 - MIN_GAIN):
             self.why = f"the held frames' error stopped falling by {MIN_GAIN:.0%} a check at step {state.step}"
             return True
         rate = (before - error) / max(state.step - before_step, 1)
