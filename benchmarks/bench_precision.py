@@ -4,7 +4,7 @@ The shipped real avatar's network, a forward and backward pass at two images (st
 latent and every network weight with gradients), float32 and bfloat16 autocast, NCHW and
 channels-last, each a median of 5 after a warm-up, the four interleaved over ``--rounds`` rounds so
 that a drift of the machine moves every arm alike. Prints the table, the CPU's bfloat16 features as
-torch sees them (:data:`pghm.device.BFLOAT16_PROBES`) and what ``--precision auto`` resolves to here,
+torch sees them (:func:`pghm.device.bfloat16_features`) and what ``--precision auto`` resolves to here,
 and writes benchmarks/results/bench_precision.json.
 
     python benchmarks/bench_precision.py [--rounds 2]
@@ -19,7 +19,7 @@ import torch
 from common import ROOT, load_average, median_ms, print_table, setup_threads, write_json
 
 from pghm.body import BodyPose, load_body
-from pghm.device import BFLOAT16_PROBES, resolve_precision
+from pghm.device import bfloat16_features, resolve_precision
 from pghm.io.avatar import load_avatar
 from pghm.model import subject_geometry
 from pghm.model.pghm import set_conv_layout
@@ -74,10 +74,7 @@ def main() -> None:
         for name, measured in times.items()
     ]
     print_table(rows)
-    features = {
-        name.removeprefix("_is_").removesuffix("_supported"): bool(getattr(torch.cpu, name, lambda: False)())
-        for name in BFLOAT16_PROBES
-    }
+    features = bfloat16_features()
     auto = str(resolve_precision("auto", torch.device("cpu"))).removeprefix("torch.")
     print(f"bfloat16 features: {features}; --precision auto here: {auto}; load average before: {load:.2f}")
     write_json("bench_precision", {"rows": rows, "bfloat16_features": features, "auto": auto, "load_average": load})

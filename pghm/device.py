@@ -56,10 +56,19 @@ BFLOAT16_PROBES: tuple[str, ...] = ("_is_amx_tile_supported", "_is_avx512_bf16_s
 Rapids and later) and AVX512-BF16's dot products (AMD Zen 4 and later, Intel Cooper Lake)."""
 
 
+def bfloat16_features() -> dict[str, bool]:
+    """Each of :data:`BFLOAT16_PROBES` by its feature's name ("amx_tile", "avx512_bf16"): whether this
+    CPU has it (False where this torch has no such probe)."""
+    return {
+        name.removeprefix("_is_").removesuffix("_supported"): bool(getattr(torch.cpu, name, lambda: False)())
+        for name in BFLOAT16_PROBES
+    }
+
+
 def has_bfloat16_arithmetic() -> bool:
     """Whether this CPU multiplies bfloat16 natively, so that oneDNN's bfloat16 convolutions beat its
     float32 ones; without such units bfloat16 is converted to float32 and back, and is slower."""
-    return any(bool(getattr(torch.cpu, name, lambda: False)()) for name in BFLOAT16_PROBES)
+    return any(bfloat16_features().values())
 
 
 def resolve_precision(name: str, device: torch.device) -> torch.dtype:
