@@ -12,8 +12,9 @@ starts as a user's would (thread policy included) and its table is the fit's own
 - ``--thread-cost``: whole default fits, ``--repeats`` of each of :data:`THREAD_COSTS` (idle; beside a
   busy loop on one thread, the count the former load-sampling policy chose there, and on the
   policy's one thread per core), interleaved: median wall and CPU seconds and their ratios;
-- ``--policies``: beside a busy loop, short fits under each thread setting of :data:`POLICIES`,
-  interleaved ``--repeats`` times: median stage-2 seconds per step and its ratio to the first;
+- ``--policies``: idle, then beside a busy loop, short fits (stages 1 and 2 alone) under each
+  thread setting of :data:`POLICIES`, interleaved ``--repeats`` times: median stage-2 seconds per
+  step and its ratio to the first;
 - ``--held-check AVATAR``: the subject's held-out frames after :data:`TRACK_STEPS` steps of pose
   refinement with the network run at every step and with its maps held;
 - ``--settle-check AVATAR``: AVATAR fitted with ``--track-steps 0``; the training frames on either
@@ -57,13 +58,15 @@ BUSY_WARMUP_S = 60
 HELD_BATCH = 8
 """Frames refined together with the network's maps held: one evaluation of the maps serves them all."""
 POLICIES = {
-    "spin, 2 threads": {"OMP_WAIT_POLICY": "", "OMP_NUM_THREADS": "2"},
-    "passive, 2 threads": {"OMP_WAIT_POLICY": "PASSIVE", "OMP_NUM_THREADS": "2"},
-    "passive, 1 thread": {"OMP_WAIT_POLICY": "PASSIVE", "OMP_NUM_THREADS": "1"},
-    "default policy": {},
+    "the policy: sleep, after a 3,000-round spin on free cores": {},
+    "a 3,000-round spin, then sleep": {"OMP_WAIT_POLICY": "PASSIVE", "GOMP_SPINCOUNT": "3000"},
+    "sleep at once": {"OMP_WAIT_POLICY": "PASSIVE"},
+    "libgomp's default spin (300,000 rounds)": {"GOMP_SPINCOUNT": "300000"},
+    "sleep at once, 1 thread": {"OMP_WAIT_POLICY": "PASSIVE", "OMP_NUM_THREADS": "1"},
 }
-"""Thread settings compared beside a busy core. An empty OMP_WAIT_POLICY is libgomp's own
-default (spin a while, then sleep), which pghm replaces only when the variable is absent."""
+"""Thread settings ``--policies`` compares, idle and beside a busy core (:mod:`pghm.cli.threads`: a
+variable the user sets wins over the policy's; GOMP_SPINCOUNT alone leaves OMP_WAIT_POLICY unset,
+which is libgomp's own default)."""
 THREAD_COSTS = {
     "idle, the policy": (False, {}),
     "busy loop, 1 thread (the load policy's choice)": (True, {"OMP_NUM_THREADS": "1"}),
@@ -93,7 +96,8 @@ def run_fit(subject: Path, out: Path, options: list[str], env: dict[str, str]) -
     """``pghm fit SUBJECT`` with ``options`` and ``--profile``: its profile record, wall time and load."""
     profile = out.with_suffix(".json")
     command = [*PGHM, "fit", str(subject), "--prior", str(PRIOR), "--out", str(out), "--profile", str(profile)]
-    child_env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "OMP_NUM_THREADS")} | env
+    policy_variables = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "OMP_NUM_THREADS")
+    child_env = {k: v for k, v in os.environ.items() if k not in policy_variables} | env
     child_env["PYTHONPATH"] = str(ROOT)
     load = load_average()
     started = time.perf_counter()
@@ -206,9 +210,10 @@ def thread_cost(subject: Path, work: Path, repeats: int) -> dict:
 
 
 def policies(subject: Path, work: Path, steps: list[int], repeats: int) -> dict:
-    """Median stage-2 wall seconds per step under each of :data:`POLICIES`, beside a busy loop."""
+    """Median stage-2 wall seconds per step under each of :data:`POLICIES`, idle and beside a busy loop."""
     stage1, stage2, _ = steps
-    options = ["--stage1-steps", str(stage1), "--stage2-steps", str(stage2), "--track-steps", "0"]
+    options = ["--stage1-steps", str(stage1), "--stage2-steps", str(stage2), "--track-steps", "0",
+               "--early-track-steps", "0", "--held-out-steps", "0", "--detail-steps", "0"]
 
     def sweep() -> dict[str, list[dict]]:
         runs: dict[str, list[dict]] = {name: [] for name in POLICIES}
@@ -217,23 +222,26 @@ def policies(subject: Path, work: Path, steps: list[int], repeats: int) -> dict:
                 runs[name].append(run_fit(subject, work / f"p{i}.pt", options, env))
         return runs
 
-    runs = with_busy_loop(sweep)
     rows = []
-    for name, records in runs.items():
-        wall = [sum(phase_seconds(r, "stage 2", "wall_s").values()) / stage2 for r in records]
-        cpu = [sum(phase_seconds(r, "stage 2", "cpu_s").values()) / stage2 for r in records]
-        rows.append(
-            {
-                "policy": name,
-                "threads": records[0]["threads"],
-                "wall_s_per_step": statistics.median(wall),
-                "cpu_s_per_step": statistics.median(cpu),
-                "load": [r["load_before"] for r in records],
-            }
-        )
-    for row in rows:
-        row["wall_ratio"] = row["wall_s_per_step"] / rows[0]["wall_s_per_step"]
-    return {"subject": subject.name, "busy_loop": True, "steps": steps, "rows": rows}
+    for busy, runs in ((False, sweep()), (True, with_busy_loop(sweep))):
+        group = []
+        for name, records in runs.items():
+            wall = [sum(phase_seconds(r, "stage 2", "wall_s").values()) / stage2 for r in records]
+            cpu = [sum(phase_seconds(r, "stage 2", "cpu_s").values()) / stage2 for r in records]
+            group.append(
+                {
+                    "beside": "a busy loop" if busy else "nothing",
+                    "policy": name,
+                    "threads": records[0]["threads"],
+                    "wall_s_per_step": statistics.median(wall),
+                    "cpu_s_per_step": statistics.median(cpu),
+                    "load": [r["load_before"] for r in records],
+                }
+            )
+        for row in group:
+            row["wall_ratio"] = row["wall_s_per_step"] / group[0]["wall_s_per_step"]
+        rows += group
+    return {"subject": subject.name, "steps": steps, "rows": rows}
 
 
 def held_check(avatar: Path, subject: Path, steps: int) -> dict:
@@ -325,7 +333,7 @@ def main() -> None:
     )
     parser.add_argument("--full", action="store_true", help="the default fit, whole")
     parser.add_argument("--busy", action="store_true", help="with --full: beside a busy loop")
-    parser.add_argument("--policies", action="store_true", help="thread settings beside a busy loop")
+    parser.add_argument("--policies", action="store_true", help="thread settings, idle and beside a busy loop")
     parser.add_argument("--thread-cost", action="store_true", help="whole default fits: idle, busy on 1 thread, busy")
     parser.add_argument("--label", default=None, help="results file suffix")
     parser.add_argument(
@@ -360,7 +368,7 @@ def main() -> None:
                 payload["thread_cost"].append(result)
             elif args.policies:
                 result = policies(subject, work, args.steps, args.repeats)
-                print(f"\n{subject.name}: stage 2 beside a busy loop")
+                print(f"\n{subject.name}: stage 2, idle and beside a busy loop")
                 print_table(result["rows"])
                 payload["policies"].append(result)
             elif args.full:

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -253,15 +254,55 @@ def test_the_losses_ssim_is_pytorch_msssims_with_the_targets_statistics_shared()
         torch.testing.assert_close(found, expected, rtol=1e-4, atol=1e-9)
 
 
-def test_the_wait_policy_is_passive_unless_the_user_chose_one(monkeypatch):
-    from pghm.cli.threads import WAIT_POLICY, set_wait_policy
+@pytest.mark.parametrize("others, spins", [(0, True), (1, False)])
+def test_threads_spin_briefly_on_free_cores_then_sleep_unless_the_user_chose_how(monkeypatch, others, spins):
+    from pghm.cli import threads
 
-    monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
-    set_wait_policy()
-    assert os.environ["OMP_WAIT_POLICY"] == WAIT_POLICY == "PASSIVE"
-    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
-    set_wait_policy()
-    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(threads, "usable_cores", lambda: 2)
+    monkeypatch.setattr(threads, "others_running", lambda: others)
+    for name in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "OMP_NUM_THREADS"):
+        monkeypatch.delenv(name, raising=False)
+    threads.set_wait_policy()
+    assert os.environ["OMP_WAIT_POLICY"] == threads.WAIT_POLICY == "PASSIVE"
+    # libgomp's default is 300,000 rounds (about 3 ms): the spin must stay far below it.
+    assert os.environ.get("GOMP_SPINCOUNT") == (str(threads.SPIN_COUNT) if spins else None)
+    assert 0 < threads.SPIN_COUNT <= 10_000
+    for chosen in ({"OMP_WAIT_POLICY": "ACTIVE"}, {"GOMP_SPINCOUNT": "0"}):
+        monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
+        monkeypatch.delenv("GOMP_SPINCOUNT", raising=False)
+        for name, value in chosen.items():
+            monkeypatch.setenv(name, value)
+        threads.set_wait_policy()
+        assert {name: os.environ.get(name) for name in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")} == {
+            "OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": None
+        } | chosen
+
+
+def test_one_thread_on_a_second_core_still_spins(monkeypatch):
+    from pghm.cli import threads
+
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    for name in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    monkeypatch.setattr(threads, "others_running", lambda: 1)
+    threads.set_wait_policy()
+    assert os.environ.get("GOMP_SPINCOUNT") == str(threads.SPIN_COUNT)
+
+
+def test_a_busy_process_is_seen_in_the_run_queue():
+    from pghm.cli.threads import others_running
+
+    if not Path("/proc/stat").is_file():
+        pytest.skip("no /proc/stat")
+    loop = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        time.sleep(0.3)
+        assert others_running() >= 1  # runnable in every read, whatever else passes
+    finally:
+        loop.kill()
+        loop.wait()
 
 
 def test_a_users_thread_count_wins(monkeypatch):

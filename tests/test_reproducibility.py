@@ -2,12 +2,13 @@
 
 The same fit of the tiny subject (every phase: stage 1, the settling between the stages, stage 2
 with pose corrections, the held-out frames' alignment, the detail stage), its evaluation with
-test-time pose refinement and a CPU render, run as a user runs them (no OMP_NUM_THREADS: the
-thread policy of :mod:`pghm.cli.threads` decides), once on an idle machine and once beside a
-CPU-bound process, give the same bytes: the avatar's tensors and metadata (its wall-clock times
-apart), the report's figures, the strip's and the render's PNGs. A policy that chose the thread
-count from the load would sum reductions in another order beside the busy process (torch splits
-them over the threads) and change the last bits.
+test-time pose refinement and a CPU render, run as a user runs them (no OMP_NUM_THREADS, no wait
+policy: the thread policy of :mod:`pghm.cli.threads` decides), once on an idle machine and once
+beside a CPU-bound process with threads that sleep at once at a barrier (``GOMP_SPINCOUNT=0``),
+give the same bytes: the avatar's tensors and metadata (its wall-clock times apart), the report's
+figures, the strip's and the render's PNGs. A policy that chose the thread count from the load
+would sum reductions in another order beside the busy process (torch splits them over the
+threads) and change the last bits; how long a thread waits must change nothing.
 """
 
 from __future__ import annotations
@@ -69,9 +70,12 @@ def same_payload(a: object, b: object) -> bool:
     return a == b
 
 
-def run_commands(subject: Path, prior: Path, out: Path) -> None:
+def run_commands(subject: Path, prior: Path, out: Path, **variables: str) -> None:
+    """The user's commands in a child process with the thread settings the policy chooses, but for
+    the environment ``variables`` given."""
     out.mkdir()
-    env = {k: v for k, v in os.environ.items() if k != "OMP_NUM_THREADS"}
+    chosen_by_policy = ("OMP_NUM_THREADS", "OMP_WAIT_POLICY", "GOMP_SPINCOUNT")
+    env = {k: v for k, v in os.environ.items() if k not in chosen_by_policy} | variables
     command = [sys.executable, "-c", COMMANDS, str(subject), str(prior), str(out)]
     result = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
@@ -88,7 +92,7 @@ def test_the_same_fit_eval_and_render_beside_a_busy_process(tiny_dataset, tmp_pa
     loop = subprocess.Popen(BUSY_LOOP)
     try:
         time.sleep(0.3)  # the loop holds a core before the commands start
-        run_commands(subject, prior, tmp_path / "busy")
+        run_commands(subject, prior, tmp_path / "busy", GOMP_SPINCOUNT="0")
     finally:
         loop.kill()
         loop.wait()
