@@ -210,8 +210,8 @@ def test_held_appearance_is_the_networks_at_the_starting_pose(tiny_dataset):
     from pghm.body.pose import BodyPose
     from pghm.model import PGHM, ModelConfig
     from pghm.train.loop import LoopConfig
-    from pghm.train.prior import GeometryCache
     from pghm.train.pose_refine import HeldAppearance
+    from pghm.train.prior import GeometryCache
 
     data = TrainingData(tiny_dataset / "subject_000")
     torch.manual_seed(0)
@@ -244,13 +244,13 @@ def test_the_losses_ssim_is_pytorch_msssims_with_the_targets_statistics_shared()
     renders = torch.rand(2, 2, 3, 40, 31, generator=generator, requires_grad=True)
     target = torch.rand(2, 3, 40, 31, generator=generator)
     shared = TargetSsim(target)
-    for render in renders:
-        reference = ssim(render, target)
-        value = shared(render)
+    for image in renders:
+        reference = ssim(image, target)
+        value = shared(image)
         # Float32 rounding of the same sums in another grouping: a few ulps of values near 1.
         torch.testing.assert_close(value, reference, rtol=0, atol=1e-6)
-        (expected,) = torch.autograd.grad(reference.sum(), render)
-        (found,) = torch.autograd.grad(value.sum(), render)
+        (expected,) = torch.autograd.grad(reference.sum(), image)
+        (found,) = torch.autograd.grad(value.sum(), image)
         torch.testing.assert_close(found, expected, rtol=1e-4, atol=1e-9)
 
 
