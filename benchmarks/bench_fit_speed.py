@@ -48,6 +48,7 @@ from pathlib import Path
 
 from common import ROOT, load_average, print_table, write_json
 
+from pghm.cli.threads import POLICY_VARIABLES
 from pghm.train.fit import TRACK_FINE_STEPS, TRACK_STEPS
 
 PGHM = [sys.executable, "-m", "pghm.cli.main"]
@@ -96,8 +97,7 @@ def run_fit(subject: Path, out: Path, options: list[str], env: dict[str, str]) -
     """``pghm fit SUBJECT`` with ``options`` and ``--profile``: its profile record, wall time and load."""
     profile = out.with_suffix(".json")
     command = [*PGHM, "fit", str(subject), "--prior", str(PRIOR), "--out", str(out), "--profile", str(profile)]
-    policy_variables = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "OMP_NUM_THREADS")
-    child_env = {k: v for k, v in os.environ.items() if k not in policy_variables} | env
+    child_env = {k: v for k, v in os.environ.items() if k not in POLICY_VARIABLES} | env
     child_env["PYTHONPATH"] = str(ROOT)
     load = load_average()
     started = time.perf_counter()

@@ -261,7 +261,7 @@ def test_threads_spin_briefly_on_free_cores_then_sleep_unless_the_user_chose_how
     monkeypatch.setattr(os, "cpu_count", lambda: 2)
     monkeypatch.setattr(threads, "usable_cores", lambda: 2)
     monkeypatch.setattr(threads, "others_running", lambda: others)
-    for name in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "OMP_NUM_THREADS"):
+    for name in threads.POLICY_VARIABLES:
         monkeypatch.delenv(name, raising=False)
     threads.set_wait_policy()
     assert os.environ["OMP_WAIT_POLICY"] == threads.WAIT_POLICY == "PASSIVE"
@@ -274,7 +274,7 @@ def test_threads_spin_briefly_on_free_cores_then_sleep_unless_the_user_chose_how
         for name, value in chosen.items():
             monkeypatch.setenv(name, value)
         threads.set_wait_policy()
-        assert {name: os.environ.get(name) for name in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")} == {
+        assert {name: os.environ.get(name) for name in threads.WAIT_VARIABLES} == {
             "OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": None
         } | chosen
 
@@ -283,7 +283,7 @@ def test_one_thread_on_a_second_core_still_spins(monkeypatch):
     from pghm.cli import threads
 
     monkeypatch.setattr(os, "cpu_count", lambda: 2)
-    for name in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT"):
+    for name in threads.WAIT_VARIABLES:
         monkeypatch.delenv(name, raising=False)
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     monkeypatch.setattr(threads, "others_running", lambda: 1)

@@ -24,6 +24,7 @@ import pytest
 import torch
 from conftest import TINY_MODEL
 
+from pghm.cli.threads import POLICY_VARIABLES
 from pghm.model import ModelConfig
 from pghm.train.loop import LoopConfig
 from pghm.train.prior import PriorConfig, train_prior
@@ -74,8 +75,7 @@ def run_commands(subject: Path, prior: Path, out: Path, **variables: str) -> Non
     """The user's commands in a child process with the thread settings the policy chooses, but for
     the environment ``variables`` given."""
     out.mkdir()
-    chosen_by_policy = ("OMP_NUM_THREADS", "OMP_WAIT_POLICY", "GOMP_SPINCOUNT")
-    env = {k: v for k, v in os.environ.items() if k not in chosen_by_policy} | variables
+    env = {k: v for k, v in os.environ.items() if k not in POLICY_VARIABLES} | variables
     command = [sys.executable, "-c", COMMANDS, str(subject), str(prior), str(out)]
     result = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]

@@ -40,6 +40,10 @@ import time
 
 WAIT_POLICY = "PASSIVE"
 """OpenMP's wait policy for torch's threads (see the module doc)."""
+WAIT_VARIABLES = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")
+"""The variables by which a user chooses how threads wait, instead of the policy."""
+POLICY_VARIABLES = (*WAIT_VARIABLES, "OMP_NUM_THREADS")
+"""Every variable by which a user overrides the thread policy: a child run as a user runs it has none."""
 SPIN_COUNT = 3000
 """libgomp's spin rounds at a barrier before a waiting thread sleeps, on free cores: about 30
 microseconds (libgomp counts some 100 rounds a microsecond), longer than the gap between two of a
@@ -74,7 +78,7 @@ def cores_free(threads: int, others: int) -> bool:
 def set_wait_policy() -> None:
     """Make OpenMP threads sleep when they wait, after a :data:`SPIN_COUNT`-round spin if the cores are
     free (module doc), unless the user chose a policy or a spin count: call before torch is imported."""
-    if "OMP_WAIT_POLICY" in os.environ or "GOMP_SPINCOUNT" in os.environ:
+    if any(name in os.environ for name in WAIT_VARIABLES):
         return
     os.environ["OMP_WAIT_POLICY"] = WAIT_POLICY
     if cores_free(_requested_threads() or usable_cores(), others_running()):
