@@ -413,33 +413,89 @@ def test_coarse_settling_steps_run_no_network_and_leave_the_avatar(tiny_dataset,
     assert all(torch.equal(a, b) for a, b in zip(before, avatar.model.parameters()))
 
 
-def test_settling_in_two_workers_is_settling_in_one(tiny_dataset, prior_file, tmp_path):
-    """Each frame's row depends on its own batch alone (lazy Adam rows, backgrounds drawn from the
-    batch's position): two workers, each on one thread, give the rows one gives, bit for bit."""
-    from pghm.train.fit import POSE_LR, FitConfig
-    from pghm.train.pose_refine import refine_poses
-
-    avatar = tiny_avatar(tiny_dataset / "subject_000", prior_file, tmp_path / "a.pt", 2, 2)
+@pytest.fixture(scope="module")
+def monocular_settling(tiny_dataset, prior_file, tmp_path_factory):
+    """A tiny avatar, its subject's data and one image of each frame (a monocular video)."""
+    avatar = tiny_avatar(tiny_dataset / "subject_000", prior_file, tmp_path_factory.mktemp("settle") / "a.pt", 2, 2)
     data = TrainingData(tiny_dataset / "subject_000")
     frames = data.subjects[0].arrays.frame_index
     images = [int(i) for i in data.images[0]]
-    one_view = [i for n, i in enumerate(images) if frames[i] not in frames[images[:n]]]  # a monocular video
+    one_view = [i for n, i in enumerate(images) if frames[i] not in frames[images[:n]]]
+    assert len(one_view) >= 2  # a batch for each worker
+    return avatar, data, one_view
+
+
+def _settle(monocular_settling, workers: int, progress: bool = False):
+    from pghm.train.fit import POSE_LR, FitConfig
+    from pghm.train.pose_refine import refine_poses
+
+    avatar, data, one_view = monocular_settling
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        rows = [
-            refine_poses(
-                avatar, data, 3, FitConfig().stage2.loss, POSE_LR, images=one_view, progress=False, batch=1,
-                coarse_steps=2, dynamic_only=True, workers=workers,
-            )
-            for workers in (1, 2)
-        ]
+        return refine_poses(
+            avatar, data, 3, FitConfig().stage2.loss, POSE_LR, images=one_view, progress=progress, batch=1,
+            coarse_steps=2, dynamic_only=True, workers=workers,
+        )
     finally:
         torch.set_num_threads(threads)
-    assert len(one_view) >= 2  # a batch for each worker
+
+
+def test_settling_in_two_workers_is_settling_in_one(monocular_settling):
+    """Each frame's row depends on its own batch alone (lazy Adam rows, backgrounds drawn from the
+    batch's position): two worker processes, each on one thread, give the rows one gives, bit for bit."""
+    rows = [_settle(monocular_settling, workers) for workers in (1, 2)]
     assert torch.count_nonzero(rows[0].rotations) > 0
     assert torch.equal(rows[0].rotations, rows[1].rotations)
     assert torch.equal(rows[0].translation, rows[1].translation)
+
+
+def test_a_settling_process_that_fails_fails_the_settling(monocular_settling, monkeypatch):
+    """A forked child's error is raised in the parent, whose children are gone after it, and a child
+    that dies without a word is reported, not waited for."""
+    import multiprocessing
+    import os
+
+    from pghm.train import pose_refine
+
+    batch = pose_refine._Settling._batch
+
+    def failing(self, objective, optimizer, samples, position):
+        if position == 1:  # the child's first batch (every second batch from the second)
+            raise RuntimeError("a failure in batch 1")
+        return batch(self, objective, optimizer, samples, position)
+
+    monkeypatch.setattr(pose_refine._Settling, "_batch", failing)
+    with pytest.raises(RuntimeError, match="a failure in batch 1"):
+        _settle(monocular_settling, 2)
+    assert not multiprocessing.active_children()
+
+    def dying(self, objective, optimizer, samples, position):
+        if position == 1:
+            os._exit(3)
+        return batch(self, objective, optimizer, samples, position)
+
+    monkeypatch.setattr(pose_refine._Settling, "_batch", dying)
+    with pytest.raises(PghmError, match="exit status 3"):
+        _settle(monocular_settling, 2)
+    assert not multiprocessing.active_children()
+
+
+def test_a_profiled_settling_counts_its_childrens_cpu_and_steps(monocular_settling, capsys):
+    """The profile's CPU seconds include the forked child's, charged to the parts it ran (the parts
+    still sum to the total), and the progress bar counts every batch's steps."""
+    from pghm.train import profile
+
+    with profile.profiled() as timing, profile.phase("pose settling"):
+        _settle(monocular_settling, 2, progress=True)
+    wall, cpu = timing.totals()
+    assert timing.children_cpu > 0
+    assert math.fsum(timing.cpu.values()) == pytest.approx(cpu, rel=1e-12)
+    assert math.fsum(timing.wall.values()) == pytest.approx(wall, rel=1e-12)
+    phase = math.fsum(seconds for (name, _), seconds in timing.cpu.items() if name == "pose settling")
+    assert phase > timing.children_cpu
+    steps = 3 * len(monocular_settling[2])
+    assert f"{steps}/{steps}" in capsys.readouterr().err
 
 
 def test_learning_rate_ten_times_too_high_leaves_no_nan(tiny_dataset, tmp_path, caplog):

@@ -28,9 +28,11 @@ poses end aligned as a fully live pass aligns them (docs/training.md, "Speed").
 
 from __future__ import annotations
 
-import copy
 import logging
-from concurrent.futures import ThreadPoolExecutor
+import multiprocessing
+from collections.abc import Callable
+from multiprocessing.connection import Connection
+from multiprocessing.sharedctypes import Synchronized
 
 import numpy as np
 import torch
@@ -39,6 +41,7 @@ from tqdm import tqdm
 
 from pghm.body import load_body
 from pghm.body.pose import BodyPose
+from pghm.errors import PghmError
 from pghm.io.avatar import Avatar, avatar_geometry
 from pghm.model.geometry import SubjectGeometry
 from pghm.model.pghm import AvatarOutput, IdentityFeatures, PoseBranch
@@ -57,6 +60,10 @@ IMAGES_PER_BATCH = 2
 """Images rendered together in one forward pass (the fit's batch): memory, not the result."""
 REFINE_SEED_SALT = 0x7E57
 """Keeps the refinement's background draws apart from the fit's (same seed, same step)."""
+FORK = "fork"
+START_METHODS = multiprocessing.get_all_start_methods()
+"""How this platform starts processes: batches are refined side by side only where a child can be
+forked, sharing the avatar and the images (not Windows)."""
 
 
 class HeldAppearance(AvatarObjective):
@@ -128,9 +135,9 @@ def refine_poses(
     refined together. ``hold_appearance``: the network's maps held at each batch's starting
     poses (:class:`HeldAppearance`). ``coarse_steps``: the first steps of each batch coarse
     (module doc). ``dynamic_only``: the loss of the dynamic render alone
-    (:class:`AvatarObjective`). ``workers``: threads that refine the batches side by side, each
-    on one core (torch's operators on one thread meanwhile), when no two images show one frame;
-    a batch's result is the same whichever refines it. Returns the corrections, indexed by
+    (:class:`AvatarObjective`). ``workers``: processes that refine the batches side by side, each
+    on one thread (:func:`_side_by_side`), when no two images show one frame and the avatar is on
+    the CPU; a batch's result is the same whichever refines it. Returns the corrections, indexed by
     :attr:`Sample.frame_key`; the other frames' rows are unchanged.
     """
     body = load_body(avatar.body_name, body_model_path)
@@ -143,12 +150,11 @@ def refine_poses(
         p.requires_grad_(False)
     images = [int(i) for i in (data.images[0] if images is None else images)]
     batches = [images[start : start + batch] for start in range(0, len(images), batch)]
-    workers = max(1, min(workers, len(batches))) if _one_view_per_frame(data, images) else 1
-    # Each worker steps its own copy of the table; the rows of its frames are copied back at the end.
-    tables = [corrections, *(copy.deepcopy(corrections) for _ in range(workers - 1))]
+    side_by_side = _one_view_per_frame(data, images) and avatar.device.type == "cpu" and FORK in START_METHODS
+    workers = max(1, min(workers, len(batches))) if side_by_side else 1
+    bar = tqdm(total=len(batches) * steps, desc=desc, disable=not progress, dynamic_ncols=True)
     settling = _Settling(
-        avatar, data, geometry, weights, lr, steps, seed, hold_appearance, coarse_steps, dynamic_only,
-        tqdm(total=len(batches) * steps, desc=desc, disable=not progress, dynamic_ncols=True),
+        avatar, data, geometry, weights, lr, steps, seed, hold_appearance, coarse_steps, dynamic_only, bar.update
     )
     threads = torch.get_num_threads()
     try:
@@ -156,25 +162,116 @@ def refine_poses(
             settling.run(corrections, batches, range(len(batches)))
         else:
             torch.set_num_threads(1)
-            with ThreadPoolExecutor(workers - 1) as pool:
-                shares = [range(worker, len(batches), workers) for worker in range(workers)]
-                others = [pool.submit(settling.run, tables[w], batches, shares[w]) for w in range(1, workers)]
-                try:
-                    settling.run(corrections, batches, shares[0])
-                finally:
-                    settling.stop = True  # the others end at their next batch if this one failed
-                    frames = [other.result() for other in others]
-            with torch.no_grad():
-                for table, keys in zip(tables[1:], frames):
-                    rows = torch.tensor(keys, dtype=torch.long, device=corrections.rotations.device)
-                    corrections.rotations[rows] = table.rotations[rows]
-                    corrections.translation[rows] = table.translation[rows]
+            _side_by_side(settling, corrections, batches, workers, bar)
     finally:
         torch.set_num_threads(threads)
-        settling.bar.close()
+        bar.close()
         for p in frozen:
             p.requires_grad_(True)
     return corrections.requires_grad_(False)
+
+
+def _side_by_side(
+    settling: _Settling, corrections: PoseCorrections, batches: list[list[int]], workers: int, bar: tqdm
+) -> None:
+    """Refine ``batches`` in ``workers`` processes, each on one thread: this one and ``workers - 1``
+    forked children, the k-th taking every ``workers``-th batch from the k-th, whose rows it sends
+    back into ``corrections``; ``bar`` counts every process's steps.
+
+    Processes, not threads: a step is hundreds of small operators, and two threads in one
+    interpreter take turns at its lock between them, which idled a quarter of two cores
+    (docs/lab/fit-speed.md). A forked child shares the avatar and the images with this process and
+    refines its own copy of the corrections; a child that fails raises its error here, and one
+    that is still running when this process fails is killed.
+    """
+    context = multiprocessing.get_context(FORK)
+    shares = [range(worker, len(batches), workers) for worker in range(workers)]
+    children_steps = context.Value("q", 0)
+    children = []
+    try:
+        for share in shares[1:]:
+            receiver, sender = context.Pipe(duplex=False)
+            child = context.Process(
+                target=_child, args=(settling, corrections, batches, share, sender, children_steps), daemon=True
+            )
+            child.start()
+            sender.close()
+            children.append((child, receiver))
+        settling.advance = _Tally(bar, children_steps).update
+        settling.run(corrections, batches, shares[0])
+        for child, receiver in children:
+            try:
+                failed, outcome = receiver.recv()
+            except EOFError:
+                child.join()
+                raise PghmError(f"a settling process ended without its result (exit status {child.exitcode})") from None
+            if failed:
+                raise outcome
+            keys, rotations, translation, cpu = outcome
+            rows = torch.as_tensor(keys, dtype=torch.long, device=corrections.rotations.device)
+            with torch.no_grad():
+                corrections.rotations[rows] = torch.as_tensor(rotations).to(corrections.rotations)
+                corrections.translation[rows] = torch.as_tensor(translation).to(corrections.translation)
+            profile.add_cpu(cpu)
+        settling.advance(0)
+    finally:
+        for child, receiver in children:
+            receiver.close()
+            if child.is_alive():
+                child.kill()
+            child.join()
+
+
+def _child(
+    settling: _Settling,
+    corrections: PoseCorrections,
+    batches: list[list[int]],
+    share: range,
+    sender: Connection,
+    steps: Synchronized,
+) -> None:
+    """A forked settling process: refine ``share`` of ``batches`` on one thread, counting the steps
+    into ``steps``, and send (failed, outcome): the rows refined and the process's CPU seconds per
+    profile part, or the error."""
+    torch.set_num_threads(1)
+    settling.advance = _Count(steps).update
+    try:
+        with profile.forked() as record:
+            keys = settling.run(corrections, batches, share)
+        rows = torch.as_tensor(keys, dtype=torch.long)
+        rotations = corrections.rotations.detach()[rows].numpy()
+        translation = corrections.translation.detach()[rows].numpy()
+        outcome = (False, (keys, rotations, translation, record.cpu_seconds() if record is not None else {}))
+    except BaseException as error:  # noqa: BLE001 - every failure is the parent's to raise
+        outcome = (True, error)
+    try:
+        sender.send(outcome)
+    except Exception:  # noqa: BLE001 - an error that does not pickle goes as its text
+        sender.send((True, PghmError(f"settling failed: {type(outcome[1]).__name__}: {outcome[1]}")))
+    sender.close()
+
+
+class _Count:
+    """A forked child's progress: its steps added to a counter the parent's bar reads."""
+
+    def __init__(self, steps: Synchronized) -> None:
+        self.steps = steps
+
+    def update(self, n: int) -> None:
+        with self.steps.get_lock():
+            self.steps.value += n
+
+
+class _Tally:
+    """The parent's progress bar, advanced by its own steps and by those the children counted since."""
+
+    def __init__(self, bar: tqdm, steps: Synchronized) -> None:
+        self.bar, self.steps = bar, steps
+
+    def update(self, n: int) -> None:
+        with self.steps.get_lock():
+            n, self.steps.value = n + self.steps.value, 0
+        self.bar.update(n)
 
 
 class _Settling:
@@ -192,13 +289,13 @@ class _Settling:
         hold_appearance: bool,
         coarse_steps: int,
         dynamic_only: bool,
-        bar: tqdm,
+        advance: Callable[[int], None],
     ) -> None:
         self.avatar, self.data, self.geometry, self.weights, self.lr = avatar, data, geometry, weights, lr
         self.steps, self.seed, self.hold_appearance, self.coarse_steps = steps, seed, hold_appearance, coarse_steps
-        self.dynamic_only, self.bar = dynamic_only, bar
+        self.dynamic_only, self.advance = dynamic_only, advance
+        """Called with the steps taken: a progress bar's update."""
         self.held = hold_appearance or coarse_steps > 0
-        self.stop = False
 
     def run(self, corrections: PoseCorrections, batches: list[list[int]], share: range) -> list[int]:
         """Refine ``corrections``' rows of the batches ``share`` (positions in ``batches``, lists of
@@ -210,8 +307,6 @@ class _Settling:
         optimizer = LazyAdam([{"params": list(corrections.parameters()), "lr": self.lr, "lazy": True}])
         frames = []
         for position in share:
-            if self.stop:
-                break
             with profile.part(profile.DATA):
                 samples = self.data.load_group(0, batches[position])
             frames += [sample.frame_key for sample in samples]
@@ -222,7 +317,7 @@ class _Settling:
         """All the steps of one batch of ``samples``, the ``position``-th batch of the refinement."""
         steps, coarse_steps = self.steps, self.coarse_steps
         if not samples:
-            self.bar.update(steps)
+            self.advance(steps)
             return
         with profile.part(profile.DATA):
             coarse = coarse_samples(samples) if coarse_steps else samples
@@ -242,7 +337,7 @@ class _Settling:
             loss, _ = objective(shown, self.geometry, backgrounds)
             with profile.part(profile.LOSSES_BACKWARD):
                 loss.backward()
-            self.bar.update(1)
+            self.advance(1)
             with profile.part(profile.GUARD):
                 finite = all_finite(p.grad for p in parameters)
             if not finite:

@@ -73,6 +73,8 @@ class Profile:
         self.threads = torch.get_num_threads()
         self._wall_mark, self._cpu_mark = time.perf_counter(), time.process_time()
         self.started_wall, self.started_cpu = self._wall_mark, self._cpu_mark
+        self.children_cpu = 0.0
+        """CPU seconds of forked children (:meth:`add_cpu`), which this process's clock does not count."""
         self.thread = threading.get_ident()
         """The thread whose parts are charged; other threads' work (a settling's second worker) falls
         in the part this one is in, as the CPU clock is the whole process's."""
@@ -114,9 +116,21 @@ class Profile:
         self.charge()
         self.load.append(os.getloadavg()[0])
 
+    def add_cpu(self, seconds: dict[tuple[str, str], float]) -> None:
+        """Add a forked child's CPU seconds per (phase, part) (:func:`forked`); its wall time is this
+        process's, spent beside it."""
+        for key, value in seconds.items():
+            self.cpu[key] += value
+            self.wall[key] += 0.0
+            self.children_cpu += value
+
+    def cpu_seconds(self) -> dict[tuple[str, str], float]:
+        """CPU seconds per (phase, part) charged up to the last mark."""
+        return dict(self.cpu)
+
     def totals(self) -> tuple[float, float]:
-        """(wall, CPU) seconds from start to the last mark."""
-        return self._wall_mark - self.started_wall, self._cpu_mark - self.started_cpu
+        """(wall, CPU) seconds from start to the last mark, forked children's CPU included."""
+        return self._wall_mark - self.started_wall, self._cpu_mark - self.started_cpu + self.children_cpu
 
     def phase_names(self) -> list[str]:
         """The phases charged so far, in the order they began."""
@@ -177,6 +191,32 @@ def profiled() -> Iterator[Profile]:
     finally:
         _ACTIVE.finish()
         _ACTIVE = None
+
+
+@contextlib.contextmanager
+def forked() -> Iterator[Profile | None]:
+    """In a child forked while a profile was active: a fresh profile of the child's own seconds,
+    charged to the phase the parent was in (its copy of the parent's profile set aside; the parent
+    adds the child's CPU with :meth:`Profile.add_cpu`); None, and nothing charged, when none was."""
+    global _ACTIVE
+    inherited = _ACTIVE
+    if inherited is None:
+        yield None
+        return
+    _ACTIVE = Profile()
+    _ACTIVE.phases = [inherited.phases[-1]]
+    try:
+        yield _ACTIVE
+    finally:
+        _ACTIVE.charge()
+        _ACTIVE = inherited
+
+
+def add_cpu(seconds: dict[tuple[str, str], float]) -> None:
+    """:meth:`Profile.add_cpu` on the active profile (nothing when none is)."""
+    active = _active()
+    if active is not None:
+        active.add_cpu(seconds)
 
 
 def _active() -> Profile | None:
