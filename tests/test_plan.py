@@ -100,8 +100,8 @@ def test_a_phase_measured_replaces_its_estimate_and_informs_its_kind():
     assert costs.unit_seconds(STAGE2) == 0.5
     costs.record(STAGE1, CALIBRATION_STEPS - 1, 100.0)  # too few steps to trust
     assert costs.unit_seconds(STAGE2) == 0.5
-    costs.record(STAGE1, 10, 10.3)
-    assert costs.unit_seconds(STAGE1) == pytest.approx(1.03)
+    costs.record(STAGE1, 10, 10 * COST_RATIOS[STAGE1])
+    assert costs.unit_seconds(STAGE1) == pytest.approx(COST_RATIOS[STAGE1])
     assert costs.unit_seconds(STAGE2) == pytest.approx(1.0)  # stage 1's step over its ratio
     assert costs.unit_seconds(HELD_OUT) == pytest.approx(COST_RATIOS[HELD_OUT])
     costs.record(EARLY_SETTLING, 700, 700 * 0.2)  # settling measured: the held-out alignment follows it

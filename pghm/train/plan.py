@@ -48,16 +48,18 @@ STAGES = (STAGE1, STAGE2)
 SETTLING = (EARLY_SETTLING, POSE_SETTLING, HELD_OUT)
 
 COST_RATIOS = {
-    STAGE1: 1.03,
-    EARLY_SETTLING: 0.085,
+    STAGE1: 0.82,
+    EARLY_SETTLING: 0.073,
     STAGE2: 1.0,
     POSE_SETTLING: 0.1,
-    HELD_OUT: 0.05,
-    DETAIL: 1.0,
+    HELD_OUT: 0.096,
+    DETAIL: 1.7,
 }
-"""Seconds per unit of each phase over a stage-2 step's: medians of the shared real video's and the
-synthetic turn's default fits on 2 cores (benchmarks/results/fit_profile_*_after3.json; the detail
-step's from docs/training.md, "Detail layer"). A settling unit is one frame's step."""
+"""Seconds per full-resolution unit of each phase over a full-resolution stage-2 step's: the shared
+real video's and the synthetic turn's default fits on 2 cores, their settling in two processes
+(benchmarks/results/fit_profile_*_zen4_processes.json: stage 1 0.80-0.83, early settling 0.073 on
+both, held-out 0.083 and 0.109, the detail stage with its validations 1.66-1.73; the pose settling as
+first measured, fit_profile_*_after3.json). A settling unit is one frame's step."""
 REFERENCE_STEP_SECONDS = 0.6
 """A stage-2 step of a 512-pixel capture at L = 128 on 2 cores, the estimate before any step has run."""
 CALIBRATION_STEPS = 3
