@@ -8,7 +8,9 @@ corrected poses:
 
 A step costs a forward pass of the U-Net (in its faster inference layout) and a render of four
 times the Gaussians, and no backward pass through the network: the residuals are leaves right
-before the activations. Each residual is seen only by the pixels its Gaussian covers, so the
+before the activations. The loss scores the dynamic render alone, counted for both
+(:class:`pghm.train.loop.AvatarObjective`'s ``dynamic_only``): the set the avatar is shown with and
+the validation scores, at half the splatting. Each residual is seen only by the pixels its Gaussian covers, so the
 stage learns what the U-Net's smooth maps and the L texels cannot hold (print, seams, folds).
 
 Whether a video gains from the layer depends on how well its frames agree with each other: it
@@ -110,7 +112,7 @@ def train_detail(
     if corrections is not None:
         corrections.requires_grad_(False)
     maps = detailed.detail.maps.requires_grad_(True)
-    objective = AvatarObjective(detailed, latent.detach(), corrections, config.loss, lpips)
+    objective = AvatarObjective(detailed, latent.detach(), corrections, config.loss, lpips, dynamic_only=True)
     geometries = GeometryCache(data, detailed.config, body_model_path, latent.device)
     optimizer = torch.optim.Adam([maps], lr=lr)
     state, steps = LoopState(), config.steps
