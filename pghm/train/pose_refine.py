@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import sys
 from collections.abc import Callable
 from multiprocessing.connection import Connection
 from multiprocessing.sharedctypes import Synchronized
@@ -60,10 +61,10 @@ IMAGES_PER_BATCH = 2
 """Images rendered together in one forward pass (the fit's batch): memory, not the result."""
 REFINE_SEED_SALT = 0x7E57
 """Keeps the refinement's background draws apart from the fit's (same seed, same step)."""
-FORK = "fork"
-START_METHODS = multiprocessing.get_all_start_methods()
-"""How this platform starts processes: batches are refined side by side only where a child can be
-forked, sharing the avatar and the images (not Windows)."""
+FORKS = sys.platform.startswith("linux")
+"""Whether batches are refined side by side, in forked children that share the avatar and the images
+(:func:`_side_by_side`): on Linux. Windows cannot fork, and macOS's system libraries do not promise a
+working child after threads have run; there the batches are refined one after another."""
 
 
 class HeldAppearance(AvatarObjective):
@@ -150,7 +151,7 @@ def refine_poses(
         p.requires_grad_(False)
     images = [int(i) for i in (data.images[0] if images is None else images)]
     batches = [images[start : start + batch] for start in range(0, len(images), batch)]
-    side_by_side = _one_view_per_frame(data, images) and avatar.device.type == "cpu" and FORK in START_METHODS
+    side_by_side = FORKS and avatar.device.type == "cpu" and _one_view_per_frame(data, images)
     workers = max(1, min(workers, len(batches))) if side_by_side else 1
     bar = tqdm(total=len(batches) * steps, desc=desc, disable=not progress, dynamic_ncols=True)
     settling = _Settling(
@@ -184,7 +185,7 @@ def _side_by_side(
     refines its own copy of the corrections; a child that fails raises its error here, and one
     that is still running when this process fails is killed.
     """
-    context = multiprocessing.get_context(FORK)
+    context = multiprocessing.get_context("fork")
     shares = [range(worker, len(batches), workers) for worker in range(workers)]
     children_steps = context.Value("q", 0)
     children = []
