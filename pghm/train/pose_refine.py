@@ -242,7 +242,7 @@ def _child(
         rows = torch.as_tensor(keys, dtype=torch.long)
         rotations = corrections.rotations.detach()[rows].numpy()
         translation = corrections.translation.detach()[rows].numpy()
-        outcome = (False, (keys, rotations, translation, record.cpu_seconds() if record is not None else {}))
+        outcome = (False, (keys, rotations, translation, dict(record.cpu) if record is not None else {}))
     except BaseException as error:  # noqa: BLE001 - every failure is the parent's to raise
         outcome = (True, error)
     try:

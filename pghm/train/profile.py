@@ -76,8 +76,8 @@ class Profile:
         self.children_cpu = 0.0
         """CPU seconds of forked children (:meth:`add_cpu`), which this process's clock does not count."""
         self.thread = threading.get_ident()
-        """The thread whose parts are charged; other threads' work (a settling's second worker) falls
-        in the part this one is in, as the CPU clock is the whole process's."""
+        """The thread whose parts are charged; other threads' work (torch's intra-op threads) falls in
+        the part this one is in, as the CPU clock is the whole process's."""
 
     def charge(self) -> None:
         """Charge the time since the last mark to the open (phase, part)."""
@@ -121,12 +121,8 @@ class Profile:
         process's, spent beside it."""
         for key, value in seconds.items():
             self.cpu[key] += value
-            self.wall[key] += 0.0
+            self.wall[key] += 0.0  # the part is listed in the record even where only the child ran it
             self.children_cpu += value
-
-    def cpu_seconds(self) -> dict[tuple[str, str], float]:
-        """CPU seconds per (phase, part) charged up to the last mark."""
-        return dict(self.cpu)
 
     def totals(self) -> tuple[float, float]:
         """(wall, CPU) seconds from start to the last mark, forked children's CPU included."""
