@@ -152,3 +152,20 @@ def test_good_pose_arrays_are_batched(body):
 def test_bad_shape_is_rejected(body):
     with pytest.raises(PoseError, match="body shape"):
         body.rest(torch.zeros(5))
+
+
+def test_lbs_of_a_batch_is_each_pose_blended_point_by_point():
+    """A batch of poses through the one wide product against sum_j w_j A_j [x; 1], point by point."""
+    gen = torch.Generator().manual_seed(7)
+    batch, bones, points = 3, 5, 11
+    transforms = torch.eye(4, dtype=torch.float64).repeat(batch, bones, 1, 1)
+    transforms[..., :3, :] += 0.3 * torch.randn(batch, bones, 3, 4, generator=gen, dtype=torch.float64)
+    weights = torch.rand(points, bones, generator=gen, dtype=torch.float64)
+    weights /= weights.sum(-1, keepdim=True)
+    x = torch.randn(points, 3, generator=gen, dtype=torch.float64)
+    expected = torch.zeros(batch, points, 3, dtype=torch.float64)
+    for b in range(batch):
+        for n in range(points):
+            blended = sum(weights[n, j] * transforms[b, j] for j in range(bones))
+            expected[b, n] = (blended @ torch.cat([x[n], torch.ones(1, dtype=torch.float64)]))[:3]
+    torch.testing.assert_close(lbs(x, weights, transforms), expected, atol=1e-12, rtol=0)
