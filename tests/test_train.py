@@ -514,6 +514,18 @@ def test_validation_images_are_the_middle_of_each_run_of_training_images():
     assert validation_images([3, 5, 8], 1) == [3, 5, 8] and validation_images([3, 5, 8], 0) == []
 
 
+def test_a_long_video_holds_at_most_the_most_validation_images_spread_over_it():
+    from pghm.train.detail import MAX_VALIDATION_IMAGES, validation_images
+
+    for count in (47, 48, 49, 88, 100, 1000):
+        held = validation_images(list(range(count)), 4)
+        gaps = np.diff(held)
+        # k = ceil(n / 12) < n / 12 + 1 frames a run, so n / k > 12 n / (n + 12) >= 9.6 runs for n >= 48
+        assert 9 <= len(held) <= MAX_VALIDATION_IMAGES
+        assert (gaps == gaps[0]).all() and held[0] < gaps[0] and count - 1 - held[-1] < gaps[0]  # even, end to end
+    assert validation_images(list(range(48)), 4) == list(range(2, 48, 4))  # up to 48 frames: every 4th, as before
+
+
 def test_detail_squared_error_is_evals_mean_squared_error_summed(tiny_dataset, prior_file, tmp_path):
     from pghm.io.avatar import load_avatar
     from pghm.train.detail import squared_error

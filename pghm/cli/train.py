@@ -210,9 +210,9 @@ def register(subparsers) -> None:
         type=STEPS,
         default=fit_defaults.detail_validation,
         metavar="EVERY",
-        help="hold every EVERY-th training frame out of the detail stage and keep the layer only if it draws "
-        "those frames closer than the avatar without it; 0: train it on every frame and keep it "
-        "(default %(default)s)",
+        help="hold every EVERY-th training frame (at most 12, spread over the video) out of the detail stage and "
+        "keep the layer only if it draws those frames closer than the avatar without it; 0: train it on every "
+        "frame and keep it (default %(default)s)",
     )
     fit.add_argument(
         "--minutes",

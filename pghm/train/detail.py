@@ -34,6 +34,7 @@ one check and fall again, and stopping there made a keep-or-drop decision on a k
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 
@@ -59,6 +60,10 @@ VALIDATION_EVERY = 4
 """Every this-many training frames, one is held out of the detail stage to validate it."""
 MIN_VALIDATION_IMAGES = 4
 """Fewest held-out frames that validate a layer; a video with fewer gets none (nothing to decide on)."""
+MAX_VALIDATION_IMAGES = 12
+"""Most held-out frames that validate a layer: a longer video holds every k-th frame with k raised so
+that no more are held. The check compares the same frames with and without the layer, which a dozen
+spread over the video decide; each check renders them all (docs/training.md, "Detail layer")."""
 CHECK_EVERY = 20
 """Steps of the detail stage between validations of its layer (:func:`validated_detail`): a
 validation renders the held frames once (a few steps' time), five of them in the default 100 steps."""
@@ -70,9 +75,13 @@ docs/lab/fit-speed.md)."""
 
 
 def validation_images(images: Sequence[int], every: int) -> list[int]:
-    """The middle image of each run of ``every`` consecutive training ``images``: the frames that
-    validate the detail layer, spread over the whole video. Empty for ``every`` 0."""
-    return [int(i) for i in images[every // 2 :: every]] if every else []
+    """The middle image of each run of ``every`` consecutive training ``images``, the runs made longer
+    where that would hold more than :data:`MAX_VALIDATION_IMAGES`: the frames that validate the
+    detail layer, spread over the whole video. Empty for ``every`` 0."""
+    if not every:
+        return []
+    every = max(every, math.ceil(len(images) / MAX_VALIDATION_IMAGES))
+    return [int(i) for i in images[every // 2 :: every]]
 
 
 def squared_error(avatar: Avatar, data: TrainingData, images: list[int], corrections: PoseCorrections | None) -> float:
