@@ -167,9 +167,10 @@ def test_after_the_stages_the_detail_stage_gets_the_time_left():
     costs = CostModel(reference_step=0.5)
     after = [Phase(HELD_OUT, 90, 5), Phase(DETAIL, 100)]
     held = costs.seconds_left(after[0])
-    planned = {p.name: p for p in budget_plan(after, costs, held + 30 * costs.unit_seconds(DETAIL))}
+    # Half a step's time more than the steps asked: the plan rounds down what rounding may leave under 30.
+    planned = {p.name: p for p in budget_plan(after, costs, held + 30.5 * costs.unit_seconds(DETAIL))}
     assert planned[HELD_OUT].steps == 90 and planned[DETAIL].steps == 30
-    planned = {p.name: p for p in budget_plan(after[1:], costs, 5 * costs.unit_seconds(DETAIL), {DETAIL: 40})}
+    planned = {p.name: p for p in budget_plan(after[1:], costs, 5.5 * costs.unit_seconds(DETAIL), {DETAIL: 40})}
     assert planned[DETAIL].steps == 45
 
 

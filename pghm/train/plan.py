@@ -53,12 +53,13 @@ COST_RATIOS = {
     STAGE2: 1.0,
     POSE_SETTLING: 0.1,
     HELD_OUT: 0.096,
-    DETAIL: 1.7,
+    DETAIL: 1.1,
 }
 """Seconds per full-resolution unit of each phase over a full-resolution stage-2 step's: the shared
 real video's and the synthetic turn's default fits on 2 cores, their settling in two processes
 (benchmarks/results/fit_profile_*_zen4_processes.json: stage 1 0.80-0.83, early settling 0.073 on
-both, held-out 0.083 and 0.109, the detail stage with its validations 1.66-1.73; the pose settling as
+both, held-out 0.083 and 0.109; the detail stage with its validations, on the dynamic render and
+at most 12 checked frames, 1.07-1.14 in fit_profile_*_zen4_wide_skinning.json; the pose settling as
 first measured, fit_profile_*_after3.json). A settling unit is one frame's step."""
 REFERENCE_STEP_SECONDS = 0.6
 """A stage-2 step of a 512-pixel capture at L = 128 on 2 cores, the estimate before any step has run."""
