@@ -111,7 +111,7 @@ def blend_transform_deltas(weights: Tensor, transforms: Tensor) -> Tensor:
     identity = torch.eye(3, 4, dtype=transforms.dtype, device=transforms.device)
     # M[b, n, k] = sum_j W[n, j] (A - I)[b, j, k] over the 12 entries k of the top 3x4 block, as one
     # (N, J) x (J, 12 B) product: the weights are shared by the batch, and one product 12 B columns
-    # wide runs about twice as fast as B products 12 wide, forward and backward, to the same bits.
+    # wide runs faster than B products 12 wide, forward and backward (docs/lab/fit-speed.md).
     columns = (transforms[..., :3, :] - identity).reshape(batch, bones, 12).transpose(0, 1).reshape(bones, batch * 12)
     return (weights.to(columns.dtype) @ columns).view(-1, batch, 3, 4).transpose(0, 1)
 
