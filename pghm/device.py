@@ -22,6 +22,8 @@ T = TypeVar("T")
 
 DEVICE_CHOICES: tuple[str, ...] = ("auto", "cpu", "cuda")
 """Values of ``--device``."""
+CPU = torch.device("cpu")
+"""The device functions default to where a caller names none."""
 
 
 def resolve_device(name: str) -> torch.device:

@@ -109,4 +109,3 @@ def set_threads() -> int:
     threads = usable_cores()
     torch.set_num_threads(threads)
     return threads
-

@@ -40,15 +40,14 @@ def export_posed(
     device: torch.device | str = "cpu",
 ) -> int:
     """Write the dynamic Gaussians of ``avatar_path`` in frame ``frame`` of ``pose_source`` to
-``out``, a .ply or a .spz by its suffix (:data:`POSED_FORMATS`).
+    ``out``, a .ply or a .spz by its suffix (:data:`POSED_FORMATS`).
 
     The view-dependent colour is baked for a camera centred at ``view`` ("X,Y,Z"; default
     FRONT_DISTANCE in front of the posed root). The network runs on ``device``. Returns the
     number of Gaussians written.
     """
-    from pghm.device import move
-
     from pghm.body import load_body
+    from pghm.device import move
     from pghm.io.avatar import avatar_geometry, load_avatar
     from pghm.io.ply import write_ply
     from pghm.io.spz import write_spz

@@ -15,6 +15,7 @@ from typing import Literal
 import numpy as np
 import torch
 
+from pghm.device import CPU
 from pghm.errors import DisplayError, PghmError
 from pghm.render.driver import GaussianArrays
 from pghm.splat import Camera
@@ -65,7 +66,7 @@ class CPUFrames:
     """Gaussian arrays -> float RGB through ``pghm.splat.render`` on ``device``: the CPU splatter
     (the spec), or gsplat on CUDA."""
 
-    def __init__(self, device: torch.device = torch.device("cpu")) -> None:
+    def __init__(self, device: torch.device = CPU) -> None:
         self.device = device
         self.driver = "CPU splatter (pghm.splat)" if device.type == "cpu" else f"gsplat on {device}"
 
@@ -92,7 +93,7 @@ class CPUFrames:
 
 @contextmanager
 def frame_renderer(
-    backend: Backend, log: Callable[[str], None] | None = None, device: torch.device = torch.device("cpu")
+    backend: Backend, log: Callable[[str], None] | None = None, device: torch.device = CPU
 ) -> Iterator[GLFrames | CPUFrames]:
     """A :class:`GLFrames` or :class:`CPUFrames` (splatting on ``device``), released on exit.
 

@@ -31,8 +31,8 @@ from torch import Tensor
 
 from pghm.device import constant
 from pghm.errors import PghmError
-from pghm.splat.spec import COV_DILATION, NEAR_PLANE
 from pghm.splat.camera import Camera
+from pghm.splat.spec import COV_DILATION, NEAR_PLANE
 
 INSTALL_HINT = "pip install 'pghm[gpu]'"
 """How to install gsplat (the ``gpu`` extra pins the version this mapping is written for)."""

@@ -18,6 +18,7 @@ import torch
 import torch.distributed as dist
 from torch import nn
 
+from pghm.device import CPU
 from pghm.errors import PghmError
 
 
@@ -43,7 +44,7 @@ def process_device(device: torch.device) -> torch.device:
     return torch.device("cuda", local)
 
 
-def init(device: torch.device = torch.device("cpu")) -> None:
+def init(device: torch.device = CPU) -> None:
     """Join the process group when started by torchrun (idempotent), for processes on ``device``."""
     if requested() and not dist.is_initialized():
         if device.type == "cuda":

@@ -29,15 +29,14 @@ from PIL import Image
 from torch import Tensor
 
 from pghm.body import load_body
-from pghm.device import move
 from pghm.errors import PghmError
 from pghm.io.atomic import all_or_none
 from pghm.io.avatar import Avatar, load_avatar, recorded_path
 from pghm.train import pose_refine
 from pghm.train.background import WHITE
 from pghm.train.data import TrainingData
-from pghm.train.frames import on_background, render_images
 from pghm.train.fit import POSE_LR, FitConfig
+from pghm.train.frames import on_background, render_images
 from pghm.train.losses import psnr, ssim
 from pghm.train.lpips import load_lpips, lpips_status
 from pghm.train.pose_track import track_corrections

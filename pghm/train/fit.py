@@ -373,7 +373,11 @@ def add_detail(
         verdict = "kept" if record["kept"] else "dropped"
         log.info(
             "fit: detail layer %s after %d steps: squared error of %d held frames %.1f with it, %.1f without",
-            verdict, state.step, len(held), record["error_with"], record["error_without"],
+            verdict,
+            state.step,
+            len(held),
+            record["error_with"],
+            record["error_without"],
         )
     if model is not None:
         avatar.model = model

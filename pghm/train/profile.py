@@ -165,10 +165,12 @@ class Profile:
         rows.append(["total", *(f"{c:.1f}" for c in per_phase), f"{wall:.1f}", f"{cpu:.1f}"])
         lines = [header, *rows]
         widths = [max(len(line[i]) for line in lines) for i in range(len(header))]
-        return "\n".join(
-            "  ".join(cell.rjust(width) if i else cell.ljust(width) for i, (cell, width) in enumerate(zip(line, widths)))
-            for line in lines
-        )
+
+        def aligned(line: list[str]) -> str:
+            cells = zip(line, widths)
+            return "  ".join(cell.rjust(width) if i else cell.ljust(width) for i, (cell, width) in enumerate(cells))
+
+        return "\n".join(aligned(line) for line in lines)
 
 
 _ACTIVE: Profile | None = None

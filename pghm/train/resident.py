@@ -58,4 +58,3 @@ def _key(sample: Sample) -> tuple[int, ...]:
     """A sample's identity, image and resolution: a coarse step's image (:mod:`pghm.train.coarse`) is
     another sample than the same image at full resolution."""
     return sample.identity, sample.image_index, sample.camera.width, sample.camera.height
-
