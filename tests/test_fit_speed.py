@@ -204,7 +204,7 @@ def test_training_samples_are_crops_of_their_frames(tiny_dataset):
     assert len(sizes) == 1  # one size per subject: a group renders as one batch
 
 
-def test_held_appearance_is_the_networks_at_the_starting_pose(tiny_dataset):
+def test_a_frozen_avatars_objective_runs_its_identity_once_and_holds_the_maps_when_asked(tiny_dataset):
     from conftest import TINY_MODEL
 
     from pghm.body.pose import BodyPose
@@ -216,25 +216,42 @@ def test_held_appearance_is_the_networks_at_the_starting_pose(tiny_dataset):
     data = TrainingData(tiny_dataset / "subject_000")
     torch.manual_seed(0)
     model = PGHM(ModelConfig(**TINY_MODEL), num_identities=1).eval()
+    with torch.no_grad():  # heads that answer the pose and the view (a new model's are zero)
+        for decoder in (model.static_decoder, model.pose_decoder, model.view_decoder):
+            decoder.head.weight.normal_(0.0, 0.3)
     geometry = GeometryCache(data, model.config, None)(0)
     latent = model.decode_identity(0).detach()
     samples = data.load_group(0, data.images[0][:2].tolist())
     held = HeldAppearance(model, latent, None, LoopConfig().loss, None)
     pose = BodyPose(torch.stack([s.rotations for s in samples]), torch.stack([s.translation for s in samples]))
+    turned = BodyPose(pose.rotations + 0.05, pose.translation)
     centres = torch.stack([s.camera.centre.float() for s in samples])
     index = torch.arange(len(samples))
+
+    def assert_same(found, expected):
+        for which in ("dynamic", "static"):
+            for name in ("means", "scales", "colors", "opacities"):
+                torch.testing.assert_close(
+                    getattr(getattr(found, which), name), getattr(getattr(expected, which), name), rtol=0, atol=0
+                )
+
     with torch.no_grad():
-        exact = model(latent, geometry, pose, centres, index)
+        exact, exact_turned = (model(latent, geometry, p, centres, index) for p in (pose, turned))
+        model.run_counts.clear()
+        for _ in range(2):  # live: the network's at each pose
+            assert_same(held.avatar(0, geometry, pose, centres, index), exact)
+            assert_same(held.avatar(0, geometry, turned, centres, index), exact_turned)
+        held.holding = True
         first = held.avatar(0, geometry, pose, centres, index)
-    for name in ("means", "scales", "colors", "opacities"):
-        torch.testing.assert_close(getattr(first.dynamic, name), getattr(exact.dynamic, name), rtol=0, atol=0)
-        torch.testing.assert_close(getattr(first.static, name), getattr(exact.static, name), rtol=0, atol=0)
-    # A moved pose moves the Gaussians through the skinning, their colours stay held.
-    turned = BodyPose(pose.rotations + 0.05, pose.translation)
-    with torch.no_grad():
+        assert_same(first, exact)
         moved = held.avatar(0, geometry, turned, centres, index)
+    # The identity's networks once for the live steps and once for the held maps, not once a step.
+    assert model.run_counts["unet_encoder"] == model.run_counts["static_decoder"] == 2
+    assert model.run_counts["pose_decoder"] == model.run_counts["view_decoder"] == 4 + 1
+    # Held: a moved pose moves the Gaussians through the skinning, their colours stay the first pose's.
     assert not torch.allclose(moved.dynamic.means, first.dynamic.means)
     assert torch.equal(moved.dynamic.colors, first.dynamic.colors)
+    assert not torch.allclose(exact_turned.dynamic.colors, first.dynamic.colors)
 
 
 def test_the_losses_ssim_is_pytorch_msssims_with_the_targets_statistics_shared():
@@ -275,7 +292,8 @@ def test_threads_spin_briefly_on_free_cores_then_sleep_unless_the_user_chose_how
             monkeypatch.setenv(name, value)
         threads.set_wait_policy()
         assert {name: os.environ.get(name) for name in threads.WAIT_VARIABLES} == {
-            "OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": None
+            "OMP_WAIT_POLICY": None,
+            "GOMP_SPINCOUNT": None,
         } | chosen
 
 
@@ -366,4 +384,3 @@ def test_the_dynamic_render_alone_stands_in_for_both():
     both, _ = objective(dynamic, dynamic, target, regularizer)
     torch.testing.assert_close(alone, both, rtol=1e-6, atol=0)
     assert "l1_d" in terms and "l1_s" not in terms
-

@@ -240,7 +240,7 @@ class PGHM(nn.Module):
         self.compute_dtype = dtype
         return self.train(self.training)
 
-    def _networks(self) -> contextlib.AbstractContextManager:
+    def compute_context(self) -> contextlib.AbstractContextManager:
         """The context the convolutional networks run in: autocast to :attr:`compute_dtype`."""
         if self.compute_dtype == torch.float32:
             return contextlib.nullcontext()  # autocast refuses some devices even disabled (meta)
@@ -479,10 +479,23 @@ class PGHM(nn.Module):
                 (multi-view data) then share the skinning and the pose branch, which run
                 once per pose instead of once per view.
         """
-        with self._networks():
+        with self.compute_context():
             features = self.identity_features(identity_map)
+        return self.posed(features, geometry, pose, camera_centres, pose_index)
+
+    def posed(
+        self,
+        features: IdentityFeatures,
+        geometry: SubjectGeometry,
+        pose: BodyPose,
+        camera_centres: Tensor,
+        pose_index: Tensor | None = None,
+    ) -> AvatarOutput:
+        """:meth:`forward` from an identity's features (:meth:`identity_features`, computed in
+        :meth:`compute_context`): all of it that depends on the pose and the cameras. A frozen
+        avatar's pose refinement runs E_u and D_static once and this at every step."""
         skinned = self.skin(geometry, pose)
-        with self._networks():
+        with self.compute_context():
             pose_branch = self.pose_branch(features, skinned)
             if pose_index is not None:
                 skinned, pose_branch = skinned.select(pose_index), pose_branch.select(pose_index)

@@ -68,20 +68,27 @@ working child after threads have run; there the batches are refined one after an
 
 
 class HeldAppearance(AvatarObjective):
-    """The objective with the network's maps held at a batch's starting poses.
+    """The objective of a frozen avatar: its identity's features computed once, and the network's
+    maps optionally held at a batch's starting poses.
 
-    A pose correction then moves the Gaussians through the skinning alone: offsets, scales and
-    colours stay those the network gave the starting pose, as for a pose change too small to
-    change them. A step costs the skinning, the splatter and the loss, not the U-Net forward
-    and backward. :meth:`release` drops the held maps (a new batch of frames).
+    The latent and the weights do not change, so E_u and D_static (:class:`IdentityFeatures`) are
+    the same at every step and run once. With :attr:`holding`, a pose correction moves the Gaussians
+    through the skinning alone: offsets, scales and colours stay those the network gave the starting
+    pose (in float32, whatever the model computes in), as for a pose change too small to change
+    them. A step then costs the skinning, the splatter and the loss, not the U-Net forward and
+    backward. :meth:`release` drops the held maps (a new batch of frames).
     """
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self._features: IdentityFeatures | None = None
+        """The identity's features as the model computes them (:meth:`PGHM.compute_context`)."""
+        self._full_features: IdentityFeatures | None = None
+        """The same in float32, which the held maps are computed from (the same in a float32 model)."""
         self._held: tuple[PoseBranch, Tensor] | None = None
-        self.holding = True
-        """False: the maps are the network's at each step's poses, as :class:`AvatarObjective`'s."""
+        self.holding = False
+        """True: the maps are held at the batch's starting poses; False: the network's at each step's
+        poses, as :class:`AvatarObjective`'s."""
 
     def release(self) -> None:
         self._held = None
@@ -89,19 +96,23 @@ class HeldAppearance(AvatarObjective):
     def avatar(
         self, identity: int, geometry: SubjectGeometry, pose: BodyPose, centres: Tensor, pose_index: Tensor
     ) -> AvatarOutput:
-        if not self.holding:
-            return super().avatar(identity, geometry, pose, centres, pose_index)
         model = self.model
+        if not self.holding:
+            if self._features is None:
+                with torch.no_grad(), model.compute_context():
+                    self._features = model.identity_features(self.identity_map(identity))
+            return model.posed(self._features, geometry, pose, centres, pose_index)
         skinned = model.skin(geometry, pose)
         if self._held is None:
             with torch.no_grad():
-                if self._features is None:
-                    self._features = model.identity_features(self.identity_map(identity))
-                branch = model.pose_branch(self._features, skinned).select(pose_index)
-                view = model.view_branch(self._features, skinned.select(pose_index), branch, geometry, centres)
+                if self._full_features is None:
+                    self._full_features = model.identity_features(self.identity_map(identity))
+                features = self._full_features
+                branch = model.pose_branch(features, skinned).select(pose_index)
+                view = model.view_branch(features, skinned.select(pose_index), branch, geometry, centres)
             self._held = (branch, view)
         branch, view = self._held
-        return model.assemble(self._features, skinned.select(pose_index), branch, view, geometry)
+        return model.assemble(self._full_features, skinned.select(pose_index), branch, view, geometry)
 
 
 def _one_view_per_frame(data: TrainingData, images: list[int]) -> bool:
@@ -296,13 +307,11 @@ class _Settling:
         self.steps, self.seed, self.hold_appearance, self.coarse_steps = steps, seed, hold_appearance, coarse_steps
         self.dynamic_only, self.advance = dynamic_only, advance
         """Called with the steps taken: a progress bar's update."""
-        self.held = hold_appearance or coarse_steps > 0
 
     def run(self, corrections: PoseCorrections, batches: list[list[int]], share: range) -> list[int]:
         """Refine ``corrections``' rows of the batches ``share`` (positions in ``batches``, lists of
         image indices), each batch for all its steps; returns the frame keys refined."""
-        kind = HeldAppearance if self.held else AvatarObjective
-        objective = kind(
+        objective = HeldAppearance(
             self.avatar.model, self.avatar.identity_map(), corrections, self.weights, None, self.dynamic_only
         )
         optimizer = LazyAdam([{"params": list(corrections.parameters()), "lr": self.lr, "lazy": True}])
@@ -314,7 +323,7 @@ class _Settling:
             self._batch(objective, optimizer, samples, position)
         return frames
 
-    def _batch(self, objective: AvatarObjective, optimizer: LazyAdam, samples: list[Sample], position: int) -> None:
+    def _batch(self, objective: HeldAppearance, optimizer: LazyAdam, samples: list[Sample], position: int) -> None:
         """All the steps of one batch of ``samples``, the ``position``-th batch of the refinement."""
         steps, coarse_steps = self.steps, self.coarse_steps
         if not samples:
@@ -322,12 +331,10 @@ class _Settling:
             return
         with profile.part(profile.DATA):
             coarse = coarse_samples(samples) if coarse_steps else samples
-        if self.held:
-            objective.release()
+        objective.release()
         parameters = list(objective.corrections.parameters())
         for step in range(steps):
-            if self.held:
-                objective.holding = self.hold_appearance or step < coarse_steps
+            objective.holding = self.hold_appearance or step < coarse_steps
             shown = coarse if step < coarse_steps else samples
             height, width = shown[0].camera.height, shown[0].camera.width
             optimizer.zero_grad(set_to_none=False)
