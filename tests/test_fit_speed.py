@@ -384,3 +384,23 @@ def test_the_dynamic_render_alone_stands_in_for_both():
     both, _ = objective(dynamic, dynamic, target, regularizer)
     torch.testing.assert_close(alone, both, rtol=1e-6, atol=0)
     assert "l1_d" in terms and "l1_s" not in terms
+
+
+def test_a_sample_is_read_from_its_files_once_while_the_kept_ones_fit(tiny_dataset, monkeypatch):
+    from pghm.subject import reader
+    from pghm.train import data as data_module
+
+    reads = []
+    read_rgb = reader.read_rgb
+    monkeypatch.setattr(reader, "read_rgb", lambda path: reads.append(path) or read_rgb(path))
+    data = TrainingData(tiny_dataset / "subject_000")
+    first, second = (int(i) for i in data.images[0][:2])
+    sample = data.load(0, first)
+    monkeypatch.setattr(data_module, "SAMPLE_CACHE_BYTES", sample.image.nbytes + sample.mask.nbytes)
+    for _ in range(3):
+        assert data.load(0, first) is sample
+        again = data.load(0, second)  # past the limit: read at each use
+    assert len(reads) == 1 + 3
+    fresh = TrainingData(tiny_dataset / "subject_000").load(0, second)
+    assert torch.equal(again.image, fresh.image) and torch.equal(again.mask, fresh.mask)
+    assert data.restricted([first]).load(0, first) is sample  # a restricted copy shares what is kept

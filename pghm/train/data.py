@@ -37,9 +37,14 @@ SHOWN_FILES = 5
 
 STEP_SEED_STRIDE = 1_000_003
 """Mixes the step into the sampling seed: generator seed = seed * stride + step."""
+SAMPLE_CACHE_BYTES = 1 << 30
+"""Most bytes of decoded samples a :class:`TrainingData` keeps in memory: a fit draws each image
+hundreds of times, and reading one (two PNGs decoded, cropped, converted) costs about 5 ms, a
+twentieth of a stage step. A 100-frame capture's crops take about 140 MB; past the limit a sample is
+read from its files at each use."""
 
 
-@dataclass
+@dataclass(frozen=True)
 class Sample:
     """One training image of one identity.
 
@@ -113,6 +118,22 @@ def pose_noise(subject: Subject) -> tuple[float, float]:
     )
 
 
+class KeptSamples(dict):
+    """Samples by (identity, image index), kept while they fit in :data:`SAMPLE_CACHE_BYTES`."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.bytes = 0
+
+    def keep(self, key: tuple[int, int], sample: Sample) -> Sample:
+        """``sample``, kept under ``key`` if it fits."""
+        size = sample.image.nbytes + sample.mask.nbytes
+        if self.bytes + size <= SAMPLE_CACHE_BYTES:
+            self[key] = sample
+            self.bytes += size
+        return sample
+
+
 class TrainingData:
     """The identities (subject folders) of a data set and their training images.
 
@@ -161,6 +182,7 @@ class TrainingData:
         self.images = [np.asarray(subject.split(split).indices, dtype=np.int64) for subject in self.subjects]
         self.split = split
         self.bad: set[tuple[int, int]] = set()
+        self._kept = KeptSamples()
         for subject, images in zip(self.subjects, self.images):
             if len(images) == 0:
                 raise DatasetError(f"{subject.directory}: no '{split}' images")
@@ -289,7 +311,15 @@ class TrainingData:
         return PoseCorrections.of_estimated_joints(self.num_frames, body, self.pose_sigmas())
 
     def load(self, identity: int, image_index: int) -> Sample:
-        """Read one image and its annotations."""
+        """One image and its annotations: read from its files at the first use, and then the same
+        sample from memory while the samples kept fit in :data:`SAMPLE_CACHE_BYTES`."""
+        key = (identity, image_index)
+        if (sample := self._kept.get(key)) is None:
+            sample = self._kept.keep(key, self._read(identity, image_index))
+        return sample
+
+    def _read(self, identity: int, image_index: int) -> Sample:
+        """Read one image and its annotations from the subject's files."""
         subject = self.subjects[identity]
         frame = subject[image_index]
         camera = Camera.from_matrices(
