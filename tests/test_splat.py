@@ -434,3 +434,88 @@ def test_native_is_deterministic_across_thread_counts():
         torch.set_num_threads(threads)
     for a, b in zip(results[0][0] + results[0][1], results[1][0] + results[1][1]):
         assert torch.equal(a, b)
+
+
+def tiled_scene(seed: int, num_gaussians: int = 3000) -> Scene:
+    """Gaussians of 0.3-6 pixels over a 160 x 120 image (5 x 4 tiles), some overlapping heavily."""
+    g = torch.Generator().manual_seed(seed)
+    width, height, f = 160, 120, 150.0
+    z = torch.empty(num_gaussians).uniform_(1.0, 4.0, generator=g)
+    screen = (torch.rand(num_gaussians, 2, generator=g) - 0.5) * torch.tensor([width, height])
+    means = torch.cat([screen * z[:, None] / f, z[:, None]], dim=-1)
+    scales = z / f * torch.empty(num_gaussians).uniform_(0.3, 6.0, generator=g)
+    colors = torch.rand(num_gaussians, 3, generator=g)
+    opacities = torch.empty(num_gaussians).uniform_(0.05, 1.0, generator=g)
+    camera = Camera(f, f, width / 2, height / 2, width, height, torch.eye(4))
+    return Scene(means, scales, colors, opacities, camera, (0.2, 0.3, 0.4))
+
+
+class _SweepAgain:
+    """The native kernel, its forward passes told to keep no blocks: every backward pass then
+    composites its tiles again to find them, as it does when the forward pass kept none."""
+
+    def __init__(self, kernel) -> None:
+        self.kernel = kernel
+
+    def forward(self, *arguments):
+        return self.kernel.forward(*arguments[:-1], 0)
+
+    def backward(self, *arguments):
+        assert arguments[-1] is None  # nothing was kept
+        return self.kernel.backward(*arguments)
+
+
+@pytest.mark.parametrize("settings", [SplatSettings(), SplatSettings(transmittance_stop=1e-2)])
+def test_the_blocks_a_forward_pass_keeps_give_the_gradients_of_a_second_sweep(monkeypatch, settings):
+    """A differentiated forward pass keeps its blocks for the backward pass; the gradients must be
+    those of the backward pass sweeping the tiles itself, bit for bit (with early termination too,
+    which the keeping forward pass does not take)."""
+    scene = tiled_scene(7)
+    kept = gradients(scene, "native", 0, settings)
+    kernel = native.load_extension()
+    monkeypatch.setattr(native, "load_extension", lambda: _SweepAgain(kernel))
+    swept = gradients(scene, "native", 0, settings)
+    for a, b in zip(kept[0] + kept[1], swept[0] + swept[1]):
+        assert torch.equal(a, b)
+
+
+@pytest.fixture
+def recordings(monkeypatch) -> list:
+    """What the native kernel's forward passes return to keep for their backward passes, in order
+    (None: nothing kept)."""
+    kernel = native.load_extension()
+    returned = []
+
+    class Spy:
+        def forward(self, *arguments):
+            result = kernel.forward(*arguments)
+            returned.append(result[-1])
+            return result
+
+        def backward(self, *arguments):
+            return kernel.backward(*arguments)
+
+    monkeypatch.setattr(native, "load_extension", Spy)
+    return returned
+
+
+def test_a_render_past_the_record_limit_keeps_some_tiles_and_sweeps_the_rest_again(monkeypatch, recordings):
+    scene = tiled_scene(7)
+    kept = gradients(scene, "native", 0)
+    monkeypatch.setattr(native, "RECORD_BYTES", 20_000)  # a few tiles' blocks
+    limited = gradients(scene, "native", 0)
+    tiles = math.ceil(scene.camera.width / native.TILE_SIZE) * math.ceil(scene.camera.height / native.TILE_SIZE)
+    assert recordings[0].tiles_kept == tiles
+    assert 0 < recordings[1].tiles_kept < tiles
+    for a, b in zip(kept[0] + kept[1], limited[0] + limited[1]):
+        assert torch.equal(a, b)
+
+
+def test_only_a_differentiated_forward_pass_keeps_its_blocks(recordings):
+    scene = tiled_scene(3, 200)
+    with torch.no_grad():
+        scene.render("native")
+    scene.render("native")  # no input requires a gradient
+    gradients(scene, "native", 0)
+    assert recordings[0] is None and recordings[1] is None
+    assert recordings[2] is not None and recordings[2].bytes > 0

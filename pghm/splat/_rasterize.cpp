@@ -9,10 +9,12 @@
 //    Gaussian visits only its footprint: for each row of its box, the span of columns where
 //    d^T Q d <= k (the roots of a quadratic), in blocks of kLanes pixels that compile to SIMD
 //    vectors, with the exact alpha test per pixel.
-//  * Backward, per tile. The same forward sweep again, recording (G, T_i) of every block, then
-//    back to front over the records with per-pixel "behind" accumulators (colour, depth,
-//    transmittance). Nothing is divided by (1 - alpha): 3DGS's reconstruction
-//    T_i = T_{i+1} / (1 - alpha_i) breaks once T underflows in heavy overlap, this does not.
+//  * Backward, per tile, back to front over the (G, T_i) of every block the forward sweep
+//    composited, with per-pixel "behind" accumulators (colour, depth, transmittance). A forward
+//    pass asked to record them keeps the tiles' blocks (a Recording, up to a size it is given) for
+//    its backward pass, which sweeps a tile not kept again to find them. Nothing is divided by
+//    (1 - alpha): 3DGS's reconstruction T_i = T_{i+1} / (1 - alpha_i) breaks once T underflows in
+//    heavy overlap, this does not.
 //  * Each (tile, Gaussian) pair writes its gradient to its own slot and a serial pass sums the
 //    slots per Gaussian: no atomics, bit-for-bit deterministic for any thread count.
 //  * Scheduling: tiles sorted by list length, longest first, handed out by an atomic counter.
@@ -31,7 +33,12 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <memory>
+#include <mutex>
 #include <numeric>
+#include <tuple>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
 namespace {
@@ -172,12 +179,108 @@ inline void block_gauss(const Splat<scalar_t>& splat, int32_t row, int32_t col, 
   }
 }
 
-// One block remembered by the backward pass's forward sweep.
+// One block remembered by a recording forward sweep, for the backward pass.
 template <typename scalar_t>
 struct Block {
   int32_t row, col;
   scalar_t gauss[kLanes];          // G, 0 for lanes that do not take part
   scalar_t transmittance[kLanes];  // T_i in front of this Gaussian
+};
+
+// The blocks of one tile's forward sweep, in compositing order, as its backward pass reads them.
+template <typename scalar_t>
+struct TileRecord {
+  std::vector<Block<scalar_t>> blocks;
+  std::vector<int64_t> first_block;  // per list entry, its first record in `blocks`; then the total
+  bool kept = false;                 // false: not recorded (the recording's size reached its limit)
+};
+
+// The tiles' records of the recordings freed last, reused by the next forward passes that record:
+// a fit's steps record about as many blocks each time (a render or two a step), and fresh memory
+// for them (allocation and its page faults) cost more than the second sweep it saves. Up to
+// kSpareBytes are kept, in at most kSpareSets sets.
+constexpr int64_t kSpareBytes = int64_t{512} << 20;
+constexpr size_t kSpareSets = 4;
+
+template <typename scalar_t>
+int64_t record_bytes(const std::vector<TileRecord<scalar_t>>& tiles) {
+  int64_t total = 0;
+  for (const TileRecord<scalar_t>& tile : tiles) {
+    total += tile.blocks.capacity() * sizeof(Block<scalar_t>) + tile.first_block.capacity() * sizeof(int64_t);
+  }
+  return total;
+}
+
+template <typename scalar_t>
+struct Spare {
+  std::mutex mutex;
+  std::vector<std::vector<TileRecord<scalar_t>>> sets;
+  int64_t bytes = 0;
+
+  static Spare& instance() {
+    static Spare spare;
+    return spare;
+  }
+
+  std::vector<TileRecord<scalar_t>> take() {
+    std::lock_guard<std::mutex> lock(mutex);
+    if (sets.empty()) {
+      return {};
+    }
+    std::vector<TileRecord<scalar_t>> tiles = std::move(sets.back());
+    sets.pop_back();
+    bytes -= record_bytes(tiles);
+    return tiles;
+  }
+
+  void give(std::vector<TileRecord<scalar_t>>&& freed) {
+    if (freed.empty()) {
+      return;
+    }
+    const int64_t size = record_bytes(freed);
+    std::lock_guard<std::mutex> lock(mutex);
+    if (sets.size() < kSpareSets && bytes + size <= kSpareBytes) {
+      bytes += size;
+      sets.push_back(std::move(freed));
+    }
+  }
+};
+
+// The tiles' records of one forward pass (forward() with a positive record_bytes), kept for its
+// backward pass so that it does not sweep them again. One of the two vectors is used, as the
+// colours' dtype; tiles are recorded while the blocks recorded take less than `limit` bytes.
+struct Recording {
+  std::vector<TileRecord<float>> single;
+  std::vector<TileRecord<double>> twice;
+  std::atomic<int64_t> recorded{0};  // bytes of the blocks recorded so far
+  int64_t limit = 0;
+
+  explicit Recording(int64_t limit) : limit(limit) {}
+  Recording(const Recording&) = delete;
+  Recording& operator=(const Recording&) = delete;
+  ~Recording() {
+    Spare<float>::instance().give(std::move(single));
+    Spare<double>::instance().give(std::move(twice));
+  }
+
+  template <typename scalar_t>
+  std::vector<TileRecord<scalar_t>>& tiles() {
+    if constexpr (std::is_same_v<scalar_t, float>) {
+      return single;
+    } else {
+      return twice;
+    }
+  }
+
+  // Bytes held by the records (their vectors' capacity).
+  int64_t bytes() const { return record_bytes(single) + record_bytes(twice); }
+
+  int64_t tiles_kept() const {
+    auto count = [](const auto& tiles) {
+      return std::count_if(tiles.begin(), tiles.end(), [](const auto& tile) { return tile.kept; });
+    };
+    return count(single) + count(twice);
+  }
 };
 
 // Per-pixel state of one tile, planar, rows padded by kLanes so a block never leaves its row;
@@ -194,8 +297,7 @@ struct TileState {
 
   int64_t stride;
   std::vector<scalar_t> transmittance, red, green, blue, depth;
-  std::vector<Block<scalar_t>> blocks;
-  std::vector<int64_t> first_block;  // per list entry, its first record in `blocks`
+  TileRecord<scalar_t> scratch;  // the backward pass's own sweep, when the forward pass kept none
   std::vector<scalar_t> grad_red, grad_green, grad_blue, grad_alpha, grad_depth;
   std::vector<scalar_t> behind_red, behind_green, behind_blue, behind_depth, behind_transmittance;
 };
@@ -243,17 +345,18 @@ inline int32_t composite_block(const scalar_t* __restrict gauss, scalar_t opacit
 }
 
 // Spec steps 5-6 over the tile's front-to-back list ids[begin, end). With kRecord, every block
-// is remembered for backward_tile() and no early exit is taken.
+// is remembered in `record` for backward_tile() and no early exit is taken (the Gaussians past
+// it composite nothing, so the planes are the same either way).
 template <typename scalar_t, bool kRecord>
 void composite_tile(const Inputs<scalar_t>& in, const int32_t* ids, int64_t begin, int64_t end, const Tile& tile,
-                    const Settings& s, TileState<scalar_t>& state) {
+                    const Settings& s, TileState<scalar_t>& state, TileRecord<scalar_t>* record) {
   std::fill(state.transmittance.begin(), state.transmittance.end(), scalar_t(1));
   for (std::vector<scalar_t>* plane : {&state.red, &state.green, &state.blue, &state.depth}) {
     std::fill(plane->begin(), plane->end(), scalar_t(0));
   }
   if (kRecord) {
-    state.blocks.clear();
-    state.first_block.clear();
+    record->blocks.clear();
+    record->first_block.clear();
   }
   const scalar_t cutoff = static_cast<scalar_t>(s.alpha_cutoff);
   const scalar_t alpha_max = static_cast<scalar_t>(s.alpha_max);
@@ -266,7 +369,7 @@ void composite_tile(const Inputs<scalar_t>& in, const int32_t* ids, int64_t begi
     const scalar_t* color = in.colors + 3 * g;
     const scalar_t depth = in.depths[g];
     if (kRecord) {
-      state.first_block.push_back(static_cast<int64_t>(state.blocks.size()));
+      record->first_block.push_back(static_cast<int64_t>(record->blocks.size()));
     }
     for_each_block(splat, [&](int32_t row, int32_t col, int32_t last) {
       const int64_t pixel = row * state.stride + col;
@@ -282,7 +385,7 @@ void composite_tile(const Inputs<scalar_t>& in, const int32_t* ids, int64_t begi
       if (kRecord) {
         block.row = row;
         block.col = col;
-        state.blocks.push_back(block);
+        record->blocks.push_back(block);
       }
     });
     if (!kRecord && finished == tile_pixels) {
@@ -290,7 +393,7 @@ void composite_tile(const Inputs<scalar_t>& in, const int32_t* ids, int64_t begi
     }
   }
   if (kRecord) {
-    state.first_block.push_back(static_cast<int64_t>(state.blocks.size()));
+    record->first_block.push_back(static_cast<int64_t>(record->blocks.size()));
   }
 }
 
@@ -310,7 +413,8 @@ void write_tile(const Tile& tile, const Settings& s, const scalar_t* background,
     }
   }
 }
-// Back to front over the recorded blocks of one tile. For Gaussian i at a pixel, with the
+// Back to front over the recorded blocks of one tile (`record`: the forward pass's; null: swept
+// again here). For Gaussian i at a pixel, with the
 // colour C_b, depth D_b and transmittance T_b composited behind it (C_b starts as the background):
 //   d rgb / d alpha_i = T_i (c_i - C_b),  d alpha_out / d alpha_i = T_i T_b,
 //   d depth / d alpha_i = T_i (z_i - D_b),  and d / d c_i = d / d z_i = alpha_i T_i.
@@ -318,8 +422,11 @@ void write_tile(const Tile& tile, const Settings& s, const scalar_t* background,
 template <typename scalar_t>
 void backward_tile(const Inputs<scalar_t>& in, const int32_t* ids, int64_t begin, int64_t end, const Tile& tile,
                    const Settings& s, const scalar_t* v_rgb, const scalar_t* v_alpha, const scalar_t* v_depth,
-                   TileState<scalar_t>& state, double* slots) {
-  composite_tile<scalar_t, true>(in, ids, begin, end, tile, s, state);
+                   TileState<scalar_t>& state, const TileRecord<scalar_t>* record, double* slots) {
+  if (record == nullptr) {
+    composite_tile<scalar_t, true>(in, ids, begin, end, tile, s, state, &state.scratch);
+    record = &state.scratch;
+  }
   const int64_t stride = state.stride;
   for (int64_t row = 0; row < tile.height; ++row) {
     for (int64_t col = 0; col < tile.width; ++col) {
@@ -345,9 +452,9 @@ void backward_tile(const Inputs<scalar_t>& in, const int32_t* ids, int64_t begin
     const scalar_t red = in.colors[3 * g], green = in.colors[3 * g + 1], blue = in.colors[3 * g + 2];
     const scalar_t depth = in.depths[g];
     scalar_t lanes[kNumGrads][kLanes] = {};  // per-lane partial sums, reduced once per Gaussian
-    const int64_t first = state.first_block[entry - begin];
-    for (int64_t index = state.first_block[entry - begin + 1] - 1; index >= first; --index) {
-      const Block<scalar_t>& block = state.blocks[index];
+    const int64_t first = record->first_block[entry - begin];
+    for (int64_t index = record->first_block[entry - begin + 1] - 1; index >= first; --index) {
+      const Block<scalar_t>& block = record->blocks[index];
       const int64_t pixel = block.row * stride + block.col;
       const scalar_t* __restrict g_red = &state.grad_red[pixel];
       const scalar_t* __restrict g_green = &state.grad_green[pixel];
@@ -481,9 +588,11 @@ Inputs<scalar_t> make_inputs(const std::vector<at::Tensor>& gaussians) {
           radius2.data_ptr<double>(),         gaussians[5].data_ptr<scalar_t>()};
 }
 
+using ForwardResult = std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor, std::shared_ptr<Recording>>;
+
 template <typename scalar_t>
-std::vector<at::Tensor> forward_impl(const Inputs<scalar_t>& in, const at::Tensor& order, const at::Tensor& counts,
-                                     const Settings& s) {
+ForwardResult forward_impl(const Inputs<scalar_t>& in, const at::Tensor& order, const at::Tensor& counts,
+                           const Settings& s, int64_t record_bytes) {
   const std::pair<at::Tensor, at::Tensor> bins =
       bin_gaussians(in.bbox, order.data_ptr<int32_t>(), counts.data_ptr<int64_t>(), s);
   const at::Tensor& offsets = bins.first;
@@ -497,17 +606,34 @@ std::vector<at::Tensor> forward_impl(const Inputs<scalar_t>& in, const at::Tenso
   scalar_t* rgb_out = rgb.data_ptr<scalar_t>();
   scalar_t* alpha_out = alpha.data_ptr<scalar_t>();
   scalar_t* depth_out = depth.data_ptr<scalar_t>();
+  std::shared_ptr<Recording> recording = record_bytes > 0 ? std::make_shared<Recording>(record_bytes) : nullptr;
+  std::vector<TileRecord<scalar_t>>* records = nullptr;
+  if (recording) {
+    records = &recording->tiles<scalar_t>();
+    *records = Spare<scalar_t>::instance().take();
+    records->resize(s.num_tiles());
+    for (TileRecord<scalar_t>& record : *records) {
+      record.kept = false;  // a spare's tiles were another pass's
+    }
+  }
   for_each_tile<scalar_t>(s, offset, [&](const Tile& tile, int64_t index, TileState<scalar_t>& state) {
-    composite_tile<scalar_t, false>(in, id, offset[index], offset[index + 1], tile, s, state);
+    if (recording && recording->recorded.load() < recording->limit) {
+      TileRecord<scalar_t>& record = (*records)[index];
+      composite_tile<scalar_t, true>(in, id, offset[index], offset[index + 1], tile, s, state, &record);
+      record.kept = true;
+      recording->recorded += static_cast<int64_t>(record.blocks.size() * sizeof(Block<scalar_t>));
+    } else {
+      composite_tile<scalar_t, false>(in, id, offset[index], offset[index + 1], tile, s, state, nullptr);
+    }
     write_tile(tile, s, in.background, state, rgb_out, alpha_out, depth_out);
   });
-  return {rgb, alpha, depth, offsets, ids};
+  return {rgb, alpha, depth, offsets, ids, recording};
 }
 
 template <typename scalar_t>
 at::Tensor backward_impl(const Inputs<scalar_t>& in, const at::Tensor& offsets, const at::Tensor& ids,
                          const at::Tensor& v_rgb, const at::Tensor& v_alpha, const at::Tensor& v_depth,
-                         const Settings& s) {
+                         const Settings& s, Recording* recording) {
   const int64_t* offset = offsets.data_ptr<int64_t>();
   const int32_t* id = ids.data_ptr<int32_t>();
   auto slots = at::empty({ids.size(0), kNumGrads}, at::kDouble);
@@ -515,8 +641,12 @@ at::Tensor backward_impl(const Inputs<scalar_t>& in, const at::Tensor& offsets, 
   const scalar_t* g_rgb = v_rgb.data_ptr<scalar_t>();
   const scalar_t* g_alpha = v_alpha.data_ptr<scalar_t>();
   const scalar_t* g_depth = v_depth.data_ptr<scalar_t>();
+  const std::vector<TileRecord<scalar_t>>* records = recording ? &recording->tiles<scalar_t>() : nullptr;
+  TORCH_CHECK(records == nullptr || static_cast<int64_t>(records->size()) == s.num_tiles(),
+              "the recording is not of this forward pass");
   for_each_tile<scalar_t>(s, offset, [&](const Tile& tile, int64_t index, TileState<scalar_t>& state) {
-    backward_tile(in, id, offset[index], offset[index + 1], tile, s, g_rgb, g_alpha, g_depth, state, slot);
+    const TileRecord<scalar_t>* record = records && (*records)[index].kept ? &(*records)[index] : nullptr;
+    backward_tile(in, id, offset[index], offset[index + 1], tile, s, g_rgb, g_alpha, g_depth, state, record, slot);
   });
   auto grads = at::zeros({s.batch, s.num_gaussians, kNumGrads}, at::kDouble);
   double* grad = grads.data_ptr<double>();
@@ -530,23 +660,25 @@ at::Tensor backward_impl(const Inputs<scalar_t>& in, const at::Tensor& offsets, 
 
 // gaussians: means2d (B, N, 2) f64, conics (B, N, 3) f64, colors (B, N, 3), opacities (B, N), depths (B, N),
 // background (3), bbox (B, N, 4) int32, radius2 (B, N) f64; colors..background float32 or float64.
-std::vector<at::Tensor> forward(const std::vector<at::Tensor>& gaussians, const at::Tensor& order,
-                                const at::Tensor& counts, int64_t width, int64_t height, int64_t tile_size,
-                                double alpha_cutoff, double alpha_max, double transmittance_stop) {
+// record_bytes > 0: keep the tiles' blocks for backward() while they take less than that (the
+// recording is returned last; None for 0).
+ForwardResult forward(const std::vector<at::Tensor>& gaussians, const at::Tensor& order, const at::Tensor& counts,
+                      int64_t width, int64_t height, int64_t tile_size, double alpha_cutoff, double alpha_max,
+                      double transmittance_stop, int64_t record_bytes) {
   TORCH_CHECK(order.scalar_type() == at::kInt && counts.scalar_type() == at::kLong, "order: int32, counts: int64");
   const Settings s =
       make_settings(gaussians[3], width, height, tile_size, alpha_cutoff, alpha_max, transmittance_stop);
   if (gaussians[2].scalar_type() == at::kFloat) {
-    return forward_impl(make_inputs<float>(gaussians), order, counts, s);
+    return forward_impl(make_inputs<float>(gaussians), order, counts, s, record_bytes);
   }
   TORCH_CHECK(gaussians[2].scalar_type() == at::kDouble, "colors must be float32 or float64");
-  return forward_impl(make_inputs<double>(gaussians), order, counts, s);
+  return forward_impl(make_inputs<double>(gaussians), order, counts, s, record_bytes);
 }
 
 at::Tensor backward(const std::vector<at::Tensor>& gaussians, const at::Tensor& offsets, const at::Tensor& ids,
                     const at::Tensor& v_rgb, const at::Tensor& v_alpha, const at::Tensor& v_depth, int64_t width,
                     int64_t height, int64_t tile_size, double alpha_cutoff, double alpha_max,
-                    double transmittance_stop) {
+                    double transmittance_stop, std::shared_ptr<Recording> recording) {
   for (const at::Tensor* tensor : {&v_rgb, &v_alpha, &v_depth}) {
     TORCH_CHECK(tensor->is_contiguous() && tensor->scalar_type() == gaussians[2].scalar_type(),
                 "output gradients must be contiguous, in the colors' dtype");
@@ -554,17 +686,24 @@ at::Tensor backward(const std::vector<at::Tensor>& gaussians, const at::Tensor& 
   const Settings s =
       make_settings(gaussians[3], width, height, tile_size, alpha_cutoff, alpha_max, transmittance_stop);
   if (gaussians[2].scalar_type() == at::kFloat) {
-    return backward_impl(make_inputs<float>(gaussians), offsets, ids, v_rgb, v_alpha, v_depth, s);
+    return backward_impl(make_inputs<float>(gaussians), offsets, ids, v_rgb, v_alpha, v_depth, s, recording.get());
   }
   TORCH_CHECK(gaussians[2].scalar_type() == at::kDouble, "colors must be float32 or float64");
-  return backward_impl(make_inputs<double>(gaussians), offsets, ids, v_rgb, v_alpha, v_depth, s);
+  return backward_impl(make_inputs<double>(gaussians), offsets, ids, v_rgb, v_alpha, v_depth, s, recording.get());
 }
 
 }  // namespace
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, module) {
   module.doc() = "pghm.splat native rasteriser (see pghm/splat/native.py)";
-  module.def("forward", &forward, "rgb, alpha, depth, tile offsets, tile ids");
-  module.def("backward", &backward, "(B, N, 10) float64 per-Gaussian gradients");
+  pybind11::class_<Recording, std::shared_ptr<Recording>>(module, "Recording")
+      .def_property_readonly("bytes", &Recording::bytes, "bytes the kept blocks take")
+      .def_property_readonly("tiles_kept", &Recording::tiles_kept, "tiles whose blocks were kept");
+  module.def("forward", &forward, "rgb, alpha, depth, tile offsets, tile ids, the recording (None unless record)");
+  module.def("backward", &backward, "(B, N, 10) float64 per-Gaussian gradients; recording: forward's, or None",
+             pybind11::arg("gaussians"), pybind11::arg("offsets"), pybind11::arg("ids"), pybind11::arg("v_rgb"),
+             pybind11::arg("v_alpha"), pybind11::arg("v_depth"), pybind11::arg("width"), pybind11::arg("height"),
+             pybind11::arg("tile_size"), pybind11::arg("alpha_cutoff"), pybind11::arg("alpha_max"),
+             pybind11::arg("transmittance_stop"), pybind11::arg("recording").none(true));
   module.attr("NUM_GRADS") = static_cast<int>(kNumGrads);
 }

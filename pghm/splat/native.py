@@ -38,6 +38,11 @@ CXX_FLAGS = ("-O3", "-fno-trapping-math", "-fopenmp", "-march=native", "-mprefer
 exception flags); a block of 8 floats is one 256-bit vector; -fopenmp makes at::parallel_for
 use torch's OpenMP pool (the extension reuses torch's libgomp) and honours ``omp simd``."""
 
+RECORD_BYTES = 1 << 30
+"""The most a differentiated render keeps of its forward pass for its backward pass (the blocks of
+its tiles, docs/splat.md "Backward per tile"); the tiles past it are composited again by the
+backward pass. A fit's renders keep 25-50 MB each."""
+
 GRAD_COLUMNS = {"means2d": slice(0, 2), "conics": slice(2, 5), "opacities": 5, "colors": slice(6, 9), "depths": 9}
 """Columns of the kernel's (B, N, 10) per-Gaussian gradient (enum GradColumn in the .cpp)."""
 
@@ -143,18 +148,22 @@ class _Rasterize(torch.autograd.Function):
     ) -> tuple[Tensor, Tensor, Tensor]:
         geometry = (width, height, TILE_SIZE, settings.alpha_cutoff, ALPHA_MAX, settings.transmittance_stop)
         gaussians = (means2d, conics, colors, opacities, depths, background, footprints.bbox, footprints.radius2)
-        rgb, alpha, depth, tile_offsets, tile_ids = load_extension().forward(
-            list(gaussians), footprints.order, footprints.counts, *geometry
+        # A pass that will be differentiated keeps its blocks, so that the backward pass need not
+        # composite the tiles again to find them.
+        record_bytes = RECORD_BYTES if any(ctx.needs_input_grad[:5]) else 0
+        rgb, alpha, depth, tile_offsets, tile_ids, recording = load_extension().forward(
+            list(gaussians), footprints.order, footprints.counts, *geometry, record_bytes
         )
         ctx.save_for_backward(*gaussians, tile_offsets, tile_ids)
         ctx.geometry = geometry
+        ctx.recording = recording
         return rgb, alpha, depth
 
     @staticmethod
     def backward(ctx, v_rgb: Tensor, v_alpha: Tensor, v_depth: Tensor):
         *gaussians, tile_offsets, tile_ids = ctx.saved_tensors
         cotangents = (v_rgb.contiguous(), v_alpha.contiguous(), v_depth.contiguous())
-        grads = load_extension().backward(gaussians, tile_offsets, tile_ids, *cotangents, *ctx.geometry)
+        grads = load_extension().backward(gaussians, tile_offsets, tile_ids, *cotangents, *ctx.geometry, ctx.recording)
         dtype = gaussians[2].dtype
         v_means2d = grads[..., GRAD_COLUMNS["means2d"]]
         v_conics = grads[..., GRAD_COLUMNS["conics"]]
