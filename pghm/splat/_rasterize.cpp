@@ -217,9 +217,10 @@ struct Spare {
   std::vector<std::vector<TileRecord<scalar_t>>> sets;
   int64_t bytes = 0;
 
+  // Never destroyed: a Recording that Python frees while the process exits still has it to give to.
   static Spare& instance() {
-    static Spare spare;
-    return spare;
+    static Spare* spare = new Spare;
+    return *spare;
   }
 
   std::vector<TileRecord<scalar_t>> take() {
