@@ -203,7 +203,7 @@ constexpr int64_t kSpareBytes = int64_t{512} << 20;
 constexpr size_t kSpareSets = 4;
 
 template <typename scalar_t>
-int64_t record_bytes(const std::vector<TileRecord<scalar_t>>& tiles) {
+int64_t capacity_bytes(const std::vector<TileRecord<scalar_t>>& tiles) {
   int64_t total = 0;
   for (const TileRecord<scalar_t>& tile : tiles) {
     total += tile.blocks.capacity() * sizeof(Block<scalar_t>) + tile.first_block.capacity() * sizeof(int64_t);
@@ -230,7 +230,7 @@ struct Spare {
     }
     std::vector<TileRecord<scalar_t>> tiles = std::move(sets.back());
     sets.pop_back();
-    bytes -= record_bytes(tiles);
+    bytes -= capacity_bytes(tiles);
     return tiles;
   }
 
@@ -238,7 +238,7 @@ struct Spare {
     if (freed.empty()) {
       return;
     }
-    const int64_t size = record_bytes(freed);
+    const int64_t size = capacity_bytes(freed);
     std::lock_guard<std::mutex> lock(mutex);
     if (sets.size() < kSpareSets && bytes + size <= kSpareBytes) {
       bytes += size;
@@ -254,7 +254,7 @@ struct Recording {
   std::vector<TileRecord<float>> single;
   std::vector<TileRecord<double>> twice;
   std::atomic<int64_t> recorded{0};  // bytes of the blocks recorded so far
-  int64_t limit = 0;
+  const int64_t limit;
 
   explicit Recording(int64_t limit) : limit(limit) {}
   Recording(const Recording&) = delete;
@@ -274,7 +274,7 @@ struct Recording {
   }
 
   // Bytes held by the records (their vectors' capacity).
-  int64_t bytes() const { return record_bytes(single) + record_bytes(twice); }
+  int64_t bytes() const { return capacity_bytes(single) + capacity_bytes(twice); }
 
   int64_t tiles_kept() const {
     auto count = [](const auto& tiles) {
@@ -700,7 +700,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, module) {
   pybind11::class_<Recording, std::shared_ptr<Recording>>(module, "Recording")
       .def_property_readonly("bytes", &Recording::bytes, "bytes the kept blocks take")
       .def_property_readonly("tiles_kept", &Recording::tiles_kept, "tiles whose blocks were kept");
-  module.def("forward", &forward, "rgb, alpha, depth, tile offsets, tile ids, the recording (None unless record)");
+  module.def("forward", &forward, "rgb, alpha, depth, tile offsets, tile ids, the recording (None for record_bytes 0)");
   module.def("backward", &backward, "(B, N, 10) float64 per-Gaussian gradients; recording: forward's, or None",
              pybind11::arg("gaussians"), pybind11::arg("offsets"), pybind11::arg("ids"), pybind11::arg("v_rgb"),
              pybind11::arg("v_alpha"), pybind11::arg("v_depth"), pybind11::arg("width"), pybind11::arg("height"),
